@@ -1,0 +1,33 @@
+# Two commands from a fresh clone (python3 + pip, ../shared beside the clone):
+#   make run    - install into .venv, `dvc pull`, `dvc repro` (the default profile)
+#   make test   - install into .venv (with test extras) and run the whole test suite
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+export DVC_NO_ANALYTICS := 1
+export PATH := $(abspath $(BIN)):$(PATH)
+
+.PHONY: install run test bench data-bench clean-outputs
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[test]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+run: install
+	$(BIN)/dvc pull --allow-missing
+	$(BIN)/dvc repro
+
+test: install
+	$(BIN)/python -m pytest -q
+
+bench: install
+	$(BIN)/python bench/ingest.py
+	$(BIN)/python bench/pipeline.py
+
+clean-outputs:
+	rm -rf data/interim data/processed data/splits reports/data reports/figures/data reports/data.md reports/metrics/data.json

@@ -1,0 +1,26 @@
+"""DVC stage `ingest@<dataset>`: raw zip archive -> canonical store in data/interim/<dataset>/."""
+
+import hydra
+from _common import log, start, progress, resolved, track, write_json
+from omegaconf import DictConfig
+
+from motionsynth.data.ingest import ingest
+
+
+@hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    start(cfg)
+    ds = cfg.dataset
+    out = f"{cfg.paths.interim}/{ds.name}"
+    summary = ingest(resolved(cfg, "dataset"), f"{cfg.paths.raw}/{ds.archive}", out,
+                     max_items=cfg.ingest.max_items, progress=progress(cfg))
+    metrics_path = f"{cfg.paths.stage_metrics}/{ds.name}/ingest.json"
+    write_json(metrics_path, summary)
+    track(cfg, "ingest", {"dataset": resolved(cfg, "dataset"), "ingest": resolved(cfg, "ingest")},
+          {k: v for k, v in summary.items() if isinstance(v, (int, float))}, [f"{out}/rejected.csv"])
+    log.info("ingest %s: %d seen = %d accepted + %d rejected", ds.name, summary["seen"],
+             summary["accepted"], summary["rejected"])
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,156 @@
+"""Stage ``split``: named protocols -> per-sequence split tables, plus train-only statistics.
+
+A protocol (``split.protocols.<name>`` in the dataset config) is one of
+
+* ``by: <meta column>`` with ``train``/``test`` value lists (or ``rest``), for
+  cross-subject and cross-view protocols. Values match on the column's trailing
+  number when both have one (``S11`` == 11, ``P008`` == 8, ``C001`` == 1), else on
+  the string; a sequence matching neither list is ``unused`` (e.g. S6 in the
+  c-SkeletonGAN protocol);
+* ``by: sequence`` with ``stratify: label`` and ``test_fraction``: a seeded
+  per-file split, stratified by class.
+
+Validation sequences are carved from train (``val_fraction``, seeded,
+stratified). Every draw is grouped by ``source_id``, so all windows and all
+camera views of one source take stay in one split. Normalisation statistics
+come from the train split only.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import pandas as pd
+
+SPLITS = ("train", "val", "test", "unused")
+
+
+def _key(v: Any) -> Any:
+    m = re.search(r"(\d+)$", str(v))
+    return int(m.group(1)) if m else str(v)
+
+
+def assign(meta: pd.DataFrame, protocol: Mapping[str, Any], val_fraction: float, seed: int) -> pd.Series:
+    """Split label per row of ``meta`` (``train``/``val``/``test``/``unused``)."""
+    by = protocol.get("by", "sequence")
+    rng = np.random.default_rng(seed)
+    if by == "sequence":
+        split = _stratified(meta, "test", float(protocol.get("test_fraction", 0.2)),
+                            protocol.get("stratify"), rng, pd.Series("train", index=meta.index))
+    else:
+        if by not in meta:
+            raise KeyError(f"split protocol: unknown meta column {by!r}; have {list(meta.columns)}")
+        keys = meta[by].map(_key)
+        train, test = protocol.get("train"), protocol.get("test")
+        if train == "rest" and test == "rest":
+            raise ValueError("split protocol: train and test cannot both be 'rest'")
+        in_train = keys.isin([_key(v) for v in train]) if train != "rest" else None
+        in_test = keys.isin([_key(v) for v in test]) if test != "rest" else None
+        if in_train is None:
+            in_train = ~in_test
+        if in_test is None:
+            in_test = ~in_train
+        if (in_train & in_test).any():
+            raise ValueError(f"split protocol: values in both train and test: {sorted(set(meta[by][in_train & in_test]))}")
+        split = pd.Series(np.where(in_train, "train", np.where(in_test, "test", "unused")), index=meta.index)
+    # validation carved out of train, grouped by source, stratified like the protocol
+    strat = protocol.get("stratify", "label" if "label" in meta else None)
+    return _stratified(meta, "val", val_fraction, strat, rng, split, among="train")
+
+
+def _stratified(meta: pd.DataFrame, target: str, fraction: float, stratify: str | None,
+                rng: np.random.Generator, split: pd.Series, among: str = "train") -> pd.Series:
+    """Move ``fraction`` of the ``among`` sources (grouped by ``source_id``) to ``target``, per stratum."""
+    split = split.copy()
+    if fraction <= 0:
+        return split
+    pool = meta[split == among]
+    groups = pool.groupby("source_id", sort=True).first()
+    strata = groups[stratify] if stratify and stratify in groups else pd.Series(0, index=groups.index)
+    chosen: list[str] = []
+    for _, members in sorted(strata.groupby(strata).groups.items(), key=lambda kv: str(kv[0])):
+        ids = np.array(sorted(members))
+        n = int(round(fraction * len(ids)))
+        if len(ids) >= 2:
+            n = min(max(n, 1), len(ids) - 1)  # every class present on both sides where possible
+        else:
+            n = 0
+        chosen += rng.permutation(ids)[:n].tolist()
+    split[meta["source_id"].isin(chosen) & (split == among)] = target
+    return split
+
+
+def train_stats(rep_dir: Path, meta: pd.DataFrame, split: pd.Series) -> dict[str, np.ndarray]:
+    """Mean/std of pose (per dimension), root and controls over train frames only."""
+    rows = meta[split == "train"]
+    if len(rows) == 0:
+        raise ValueError(f"{rep_dir}: the train split is empty")
+    idx = np.concatenate([np.arange(o, o + f) for o, f in zip(rows["offset"], rows["frames"])])
+    out: dict[str, np.ndarray] = {}
+    for name in ("pose", "root", "controls"):
+        p = rep_dir / f"{name}.npy"
+        if not p.exists():
+            continue
+        x = np.asarray(np.load(p, mmap_mode="r")[idx], dtype=np.float64)
+        out[f"{name}_mean"] = x.mean(0).astype(np.float32)
+        out[f"{name}_std"] = np.maximum(x.std(0), 1e-6).astype(np.float32)
+    if "root_mean" in out and (rep_dir / "controls.npy").exists() is False:
+        out["mean_depth"] = np.float32(out["root_mean"][2])  # 2-D: mean camera depth of the centre joint
+    out["train_frames"] = np.int64(len(idx))
+    return out
+
+
+def check_no_leak(table: pd.DataFrame, windows: pd.DataFrame | None = None) -> None:
+    """Assert every source take and every window belongs to exactly one split."""
+    per_seq = table.groupby("sequence_id")["split"].nunique()
+    if (per_seq > 1).any():
+        raise AssertionError(f"sequences in several splits: {per_seq[per_seq > 1].index[:5].tolist()}")
+    used = table[table["split"] != "unused"]
+    per_src = used.groupby("source_id")["split"].nunique()
+    if table.attrs.get("grouped_by_source", True) and (per_src > 1).any():
+        raise AssertionError(f"source takes across splits: {per_src[per_src > 1].index[:5].tolist()}")
+    if windows is not None and len(windows):
+        s = table.set_index("sequence_id")["split"]
+        if windows["sequence_id"].map(s).isna().any():
+            raise AssertionError("windows whose sequence has no split")
+
+
+def split_dataset(processed: str | Path, out: str | Path, cfg: Mapping[str, Any], seed: int) -> dict[str, Any]:
+    """Write ``out/<rep>/<protocol>.csv`` and ``<protocol>_stats.npz`` for every representation."""
+    processed, out = Path(processed), Path(out)
+    summary: dict[str, Any] = {}
+    reps = sorted(p.parent for p in processed.glob("*/meta.parquet"))
+    if not reps:
+        raise FileNotFoundError(f"{processed}: no prepared representation (run prepare first)")
+    for rep_dir in reps:
+        meta = pd.read_parquet(rep_dir / "meta.parquet")
+        wins = {p.stem.removeprefix("windows_"): pd.read_parquet(p) for p in sorted(rep_dir.glob("windows_*.parquet"))}
+        rep_out = out / rep_dir.name
+        rep_out.mkdir(parents=True, exist_ok=True)
+        for name, protocol in cfg["protocols"].items():
+            protocol = dict(protocol)
+            if protocol.get("space") and protocol["space"] != _space(rep_dir):
+                continue  # e.g. a view protocol that only applies to 2-D projections
+            split = assign(meta, protocol, float(cfg.get("val_fraction", 0.1)), seed)
+            table = pd.DataFrame({"sequence_id": meta["sequence_id"], "source_id": meta["source_id"],
+                                  "split": split.to_numpy()})
+            # view protocols legitimately put views of one take on both sides
+            table.attrs["grouped_by_source"] = protocol.get("by") not in ("view",)
+            for w in wins.values():
+                check_no_leak(table, w)
+            table.to_csv(rep_out / f"{name}.csv", index=False)
+            np.savez(rep_out / f"{name}_stats.npz", **train_stats(rep_dir, meta, split))
+            s = table["split"]
+            summary[f"{rep_dir.name}/{name}"] = {
+                "sequences": {k: int((s == k).sum()) for k in SPLITS},
+                "frames": {k: int(meta["frames"][s == k].sum()) for k in SPLITS},
+                "windows": {fam: {k: int(w["seq"].map(s).eq(k).sum()) for k in SPLITS} for fam, w in wins.items()},
+            }
+    return summary
+
+
+def _space(rep_dir: Path) -> str:
+    return "3d" if (rep_dir / "controls.npy").exists() else "2d"

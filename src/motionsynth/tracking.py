@@ -1,0 +1,152 @@
+"""The one place that talks to MLflow.
+
+* Tracking URI: ``$MLFLOW_TRACKING_URI`` if set, else ``sqlite:///<repo>/mlflow.db``
+  with an absolute path (Hydra may change the working directory).
+* Experiments are named ``motionsynth/<dataset>``; runs ``<stage>:<what>``.
+* Only rank 0 of a distributed job logs (``RANK`` unset or ``0``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import json
+import os
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+
+log = logging.getLogger(__name__)
+
+
+def tracking_uri(root: str | Path) -> str:
+    env = os.environ.get("MLFLOW_TRACKING_URI")
+    if env:
+        return env
+    return f"sqlite:///{Path(root).resolve() / 'mlflow.db'}"
+
+
+def is_rank_zero() -> bool:
+    return int(os.environ.get("RANK", "0")) == 0
+
+
+def flatten(d: Mapping[str, Any], prefix: str = "", sep: str = ".") -> dict[str, Any]:
+    """Flatten nested mappings into ``a.b.c`` keys; lists become their string form."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f"{prefix}{sep}{k}" if prefix else str(k)
+        if isinstance(v, Mapping):
+            out.update(flatten(v, key, sep))
+        else:
+            out[key] = v
+    return out
+
+
+class StageRecorder:
+    """Log one short stage's run from a helper process started when the stage starts.
+
+    MLflow's import and store initialisation cost ~2.5 s of CPU per process. A
+    short data stage starts this recorder first; the helper process pays that
+    cost on the second core while the stage works, then waits for the record.
+    :meth:`submit` sends params/metrics/artifacts and waits until they are
+    written, so a stage never ends with its run unlogged; a logging failure
+    fails the stage. Long jobs (training) log in-process with :func:`run`.
+    """
+
+    def __init__(self, root: str | Path, experiment: str):
+        import subprocess
+        import sys
+
+        self.proc = None
+        if not is_rank_zero():
+            return
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "motionsynth.tracking", tracking_uri(root), experiment],
+            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(
+                [str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")])})
+
+    def submit(self, run_name: str, params: Mapping[str, Any], metrics: Mapping[str, Any],
+               tags: Mapping[str, str], artifacts: list[str] = ()) -> None:
+        if self.proc is None:
+            return
+        flat_params = {k: _short(v) for k, v in flatten(params).items()}
+        flat_metrics = {k: float(v) for k, v in flatten(metrics).items()
+                        if isinstance(v, (int, float)) and not isinstance(v, bool)}
+        payload = json.dumps({"run_name": run_name, "params": flat_params, "metrics": flat_metrics,
+                              "tags": dict(tags), "artifacts": [str(a) for a in artifacts if Path(a).exists()]})
+        _, err = self.proc.communicate(payload, timeout=600)
+        if self.proc.returncode != 0:
+            raise RuntimeError(f"MLflow logging of {run_name!r} failed:\n{err[-2000:]}")
+
+
+def _serve(uri: str, experiment: str) -> None:
+    """Helper-process side of :class:`StageRecorder`."""
+    import sys
+
+    import mlflow
+
+    logging.getLogger("alembic").setLevel(logging.WARNING)
+    mlflow.set_tracking_uri(uri)
+    mlflow.set_experiment(experiment)
+    data = sys.stdin.read()
+    if not data.strip():  # the stage failed before submitting: log nothing
+        return
+    rec = json.loads(data)
+    with mlflow.start_run(run_name=rec["run_name"], tags=rec["tags"]):
+        items = list(rec["params"].items())
+        for i in range(0, len(items), 100):
+            mlflow.log_params(dict(items[i:i + 100]))
+        if rec["metrics"]:
+            mlflow.log_metrics(rec["metrics"])
+        for a in rec["artifacts"]:
+            mlflow.log_artifact(a)
+
+
+@contextlib.contextmanager
+def run(root: str | Path, experiment: str, run_name: str, params: Mapping[str, Any] | None = None,
+        tags: Mapping[str, str] | None = None) -> Iterator[Any]:
+    """Open an MLflow run (rank 0 only; other ranks get ``None``) and log ``params``."""
+    if not is_rank_zero():
+        yield None
+        return
+    import mlflow  # imported lazily: it costs ~2 s
+
+    logging.getLogger("alembic").setLevel(logging.WARNING)
+    mlflow.set_tracking_uri(tracking_uri(root))
+    mlflow.set_experiment(experiment)
+    with mlflow.start_run(run_name=run_name, tags=dict(tags or {})) as active:
+        if params:
+            flat = {k: _short(v) for k, v in flatten(params).items()}
+            items = list(flat.items())
+            for i in range(0, len(items), 100):
+                mlflow.log_params(dict(items[i:i + 100]))
+        yield active
+
+
+def log_metrics(metrics: Mapping[str, float], step: int | None = None) -> None:
+    if not is_rank_zero():
+        return
+    import mlflow
+
+    clean = {k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+    if clean:
+        mlflow.log_metrics(clean, step=step)
+
+
+def log_artifact(path: str | Path, artifact_path: str | None = None) -> None:
+    if not is_rank_zero():
+        return
+    import mlflow
+
+    mlflow.log_artifact(str(path), artifact_path)
+
+
+def _short(v: Any) -> str:
+    s = str(v)
+    return s if len(s) <= 500 else s[:497] + "..."
+
+
+if __name__ == "__main__":
+    import sys
+
+    _serve(sys.argv[1], sys.argv[2])
