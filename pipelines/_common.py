@@ -19,7 +19,8 @@ log = logging.getLogger("motionsynth")
 
 
 def progress(cfg: DictConfig) -> bool:
-    return bool(cfg.progress) and os.environ.get("PROGRESS", "1") != "0"
+    """Progress bars on an interactive terminal only (not in CI logs); PROGRESS=0 turns them off."""
+    return bool(cfg.progress) and os.environ.get("PROGRESS", "1") != "0" and sys.stderr.isatty()
 
 
 def write_json(path: str | Path, obj: Any) -> None:

@@ -1,4 +1,4 @@
-"""DVC stage `data_report`: reports/data.md, one PNG per dataset, reports/metrics/data.json."""
+"""DVC stage `data_report`: reports/data.md with the counts table and one PNG per dataset."""
 
 from pathlib import Path
 
@@ -16,7 +16,7 @@ def main(cfg: DictConfig) -> None:
     datasets = [OmegaConf.to_container(compose("config", overrides=[f"dataset={n}"]).dataset) for n in names]
     p = cfg.paths
     metrics = data_report(datasets, Path(p.stage_metrics), Path(p.interim), Path(p.reports) / "figures" / "data",
-                          Path(p.reports) / "data.md", Path(p.reports) / "metrics" / "data.json", cfg.profile_name)
+                          Path(p.reports) / "data.md", cfg.profile_name)
     for name, m in metrics.items():
         log.info("%s: %d accepted + %d rejected = %d seen", name, m["accepted"], m["rejected"], m["seen"])
 

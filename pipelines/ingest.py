@@ -5,6 +5,7 @@ from _common import log, start, progress, resolved, track, write_json
 from omegaconf import DictConfig
 
 from motionsynth.data.ingest import ingest
+from motionsynth.reporting import ingest_metrics
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
@@ -14,8 +15,8 @@ def main(cfg: DictConfig) -> None:
     out = f"{cfg.paths.interim}/{ds.name}"
     summary = ingest(resolved(cfg, "dataset"), f"{cfg.paths.raw}/{ds.archive}", out,
                      max_items=cfg.ingest.max_items, progress=progress(cfg))
-    metrics_path = f"{cfg.paths.stage_metrics}/{ds.name}/ingest.json"
-    write_json(metrics_path, summary)
+    write_json(f"{cfg.paths.stage_metrics}/{ds.name}/ingest.json", summary)
+    write_json(f"{cfg.paths.reports}/metrics/data/{ds.name}.json", ingest_metrics(summary))
     track(cfg, "ingest", {"dataset": resolved(cfg, "dataset"), "ingest": resolved(cfg, "ingest")},
           {k: v for k, v in summary.items() if isinstance(v, (int, float))}, [f"{out}/rejected.csv"])
     log.info("ingest %s: %d seen = %d accepted + %d rejected", ds.name, summary["seen"],

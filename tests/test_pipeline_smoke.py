@@ -66,7 +66,7 @@ def test_smoke_repro_runs_every_data_stage(smoke_clone):
             assert (dst / "reports" / "data" / ds / f"{stage}.json").exists()
         assert (dst / "reports" / "figures" / "data" / f"{ds}.png").stat().st_size > 10_000
         assert list((dst / "data" / "splits" / ds).glob("*/*.csv"))
-    metrics = json.loads((dst / "reports" / "metrics" / "data.json").read_text())
+    metrics = {p.stem: json.loads(p.read_text()) for p in (dst / "reports" / "metrics" / "data").glob("*.json")}
     assert set(metrics) == set(DATASETS)
     for ds, m in metrics.items():
         assert m["accepted"] + m["rejected"] == m["seen"], ds
@@ -89,7 +89,12 @@ def test_smoke_stages_are_logged_to_mlflow(smoke_clone):
     assert n_metrics > 50
 
 
-def test_second_repro_is_a_no_op(smoke_clone):
+def test_second_repro_is_a_no_op_and_metrics_show_one_row_per_dataset(smoke_clone):
     dst, env, _ = smoke_clone
     out = sh([sys.executable, "-m", "dvc", "repro"], dst, env)
     assert "Running stage" not in out and "up to date" in out
+    shown = sh([sys.executable, "-m", "dvc", "metrics", "show", "--json"], dst, env)
+    data = json.loads(shown[shown.index("{"):])
+    files = next(iter(data.values()))["data"]
+    rows = {Path(k).stem: v["data"] for k, v in files.items() if "metrics/data/" in k}
+    assert set(rows) == set(DATASETS) and rows["h36m"]["accepted"] == 8  # the smoke limit

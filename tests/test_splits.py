@@ -8,6 +8,7 @@ import pytest
 from conftest import archive_path, dataset_cfg
 
 from motionsynth.data.ingest import ingest
+from motionsynth.data.normalise import Normaliser
 from motionsynth.data.prepare import prepare
 from motionsynth.data.splits import assign, check_no_leak, split_dataset
 
@@ -97,4 +98,15 @@ def test_real_h36m_windows_never_cross_splits(tmp_path):
     assert set(cv[cv.split == "test"].sequence_id.str.split("@").str[1]) == {"60457274"}
     stats = np.load(tmp_path / "s/bench2d/csgan_stats.npz")
     assert float(stats["mean_depth"]) > 1.0
+    # the c-SkeletonGAN normalisation: depth-scaled, then standardised with train statistics
+    norm = Normaliser.load(tmp_path / "s/bench2d/csgan_stats.npz")
+    pose, root = np.load(tmp_path / "p/bench2d/pose.npy"), np.load(tmp_path / "p/bench2d/root.npy")
+    m = pd.read_parquet(tmp_path / "p/bench2d/meta.parquet")
+    t = pd.read_csv(tmp_path / "s/bench2d/csgan.csv")
+    train = m[t.split.values == "train"]
+    idx = np.concatenate([np.arange(o, o + f) for o, f in zip(train.offset, train.frames)])
+    z = norm(pose[idx], root[idx])
+    np.testing.assert_allclose(z.mean(0), 0, atol=1e-3)
+    np.testing.assert_allclose(z.std(0), 1, atol=1e-3)
+    np.testing.assert_allclose(norm.inverse(z, root[idx]), pose[idx], atol=1e-3)
     assert not (tmp_path / "s/pos3d/cross_view.csv").exists()   # the view protocol is 2-D only

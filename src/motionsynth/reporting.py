@@ -11,14 +11,15 @@ import numpy as np
 from .data.store import Store
 from .viz.skeleton_plot import dataset_figure
 
-DATA_COLUMNS = ["seen", "accepted", "rejected", "frames", "hours", "fps", "joints", "classes",
+DATA_COLUMNS = ["seen", "accepted", "rejected", "sequences", "frames", "hours", "fps", "joints", "classes",
                 "subjects", "views", "multi_body_sequences"]
+UNKNOWN_IF_ZERO = {"subjects", "views"}  # 0 means the source does not record it
 
 
 def md_table(header: list[str], rows: list[list[Any]]) -> str:
     def fmt(v: Any) -> str:
         if isinstance(v, float):
-            return f"{v:.3f}" if abs(v) < 100 else f"{v:,.0f}"
+            return f"{v:,.0f}" if abs(v) >= 100 else f"{v:.3g}" if v != int(v) else f"{int(v)}"
         if isinstance(v, int):
             return f"{v:,}"
         return str(v).replace("|", "\\|")
@@ -27,14 +28,26 @@ def md_table(header: list[str], rows: list[list[Any]]) -> str:
     return "\n".join(lines)
 
 
-def example_index(store: Store) -> int:
-    """The sequence shown in the data figure: the longest one (deterministic)."""
-    return int(np.argmax(store.meta["frames"].to_numpy()))
+def example_index(store: Store, example: str | None = None) -> int:
+    """The sequence drawn in the data figure: ``example`` if configured, else the
+    longest of the sequences with the most people (deterministic)."""
+    meta = store.meta
+    if example is not None:
+        hits = np.flatnonzero(meta["sequence_id"].to_numpy() == example)
+        if len(hits):
+            return int(hits[0])
+    bodies = meta["bodies"].to_numpy() if "bodies" in meta else np.ones(len(meta))
+    return int(np.lexsort((-meta["frames"].to_numpy(), -bodies))[0])
+
+
+def ingest_metrics(summary: dict[str, Any]) -> dict[str, Any]:
+    """The flat per-dataset DVC metrics of ``ingest`` (one row per dataset in ``dvc metrics show``)."""
+    return {k: (summary["accepted"] if k == "sequences" else summary[k]) for k in DATA_COLUMNS}
 
 
 def data_report(datasets: list[dict[str, Any]], stage_metrics: Path, interim: Path, figures: Path,
-                out_md: Path, out_json: Path, profile: str) -> dict[str, Any]:
-    """Write ``reports/data.md`` and the metrics JSON from the per-stage summaries."""
+                out_md: Path, profile: str) -> dict[str, Any]:
+    """Write ``reports/data.md`` (table, figures, rejected items, notes) from the per-stage summaries."""
     rows, metrics, sections = [], {}, []
     for ds in datasets:
         name = ds["name"]
@@ -44,10 +57,10 @@ def data_report(datasets: list[dict[str, Any]], stage_metrics: Path, interim: Pa
         spl = json.loads((d / "split.json").read_text()) if (d / "split.json").exists() else {}
         if ing["accepted"] + ing["rejected"] != ing["seen"]:
             raise AssertionError(f"{name}: accepted + rejected != seen in {d / 'ingest.json'}")
-        metrics[name] = {k: ing[k] for k in DATA_COLUMNS}
-        rows.append([name] + [ing[k] for k in DATA_COLUMNS])
+        metrics[name] = m = ingest_metrics(ing)
+        rows.append([name] + [("—" if k in UNKNOWN_IF_ZERO and m[k] == 0 else m[k]) for k in DATA_COLUMNS])
         store = Store.open(interim / name)
-        i = example_index(store)
+        i = example_index(store, (ds.get("report") or {}).get("example"))
         seq = store.sequence(i)
         fig = dataset_figure(seq.positions, store.skeleton, f"{name}: {seq.meta['sequence_id']} "
                              f"({seq.meta.get('label_name', '')})", figures / f"{name}.png",
@@ -80,11 +93,10 @@ def data_report(datasets: list[dict[str, Any]], stage_metrics: Path, interim: Pa
         "reader lists is counted once as *seen*, and ends up either *accepted* or *rejected* with a reason: "
         "accepted + rejected = seen holds for every row.", "",
         md_table(["dataset"] + DATA_COLUMNS, rows), "",
-        "Columns: `frames` and `hours` at the source frame rate; `views` = 2-D camera views per sequence; "
-        "`multi_body_sequences` = sequences with 2 or more people.", "",
+        "Columns: `sequences` = accepted source sequences; `frames` and `hours` at the source frame rate; "
+        "`views` = 2-D camera views per sequence; `multi_body_sequences` = sequences with 2 or more people; "
+        "— = not recorded by the source (Bandai and the CMU dances name no performers).", "",
         "## Datasets", "",
     ] + sections
     out_md.write_text("\n".join(text))
-    out_json.parent.mkdir(parents=True, exist_ok=True)
-    out_json.write_text(json.dumps(metrics, indent=1) + "\n")
     return metrics

@@ -272,24 +272,16 @@ def _parse_hierarchy(header: str, member: str):
     try:
         while i < n:
             t = toks[i]
-            if t in ("ROOT", "JOINT"):
+            if t in ("ROOT", "JOINT", "End"):
                 if t == "JOINT" and not stack:
                     raise InputError(member, "JOINT outside any ROOT")
-                names.append(toks[i + 1])
-                parents.append(stack[-1] if t == "JOINT" else -1)
-                offsets.append([0.0, 0.0, 0.0])
-                channels.append([])
-                is_end.append(False)
-                pending = len(names) - 1
-                i += 2
-            elif t == "End":
-                if toks[i + 1] != "Site" or not stack:
+                if t == "End" and (toks[i + 1] != "Site" or not stack):
                     raise InputError(member, "malformed End Site")
-                names.append(f"{names[stack[-1]]}_End")
-                parents.append(stack[-1])
+                names.append(f"{names[stack[-1]]}_End" if t == "End" else toks[i + 1])
+                parents.append(stack[-1] if t != "ROOT" else -1)
                 offsets.append([0.0, 0.0, 0.0])
                 channels.append([])
-                is_end.append(True)
+                is_end.append(t == "End")
                 pending = len(names) - 1
                 i += 2
             elif t == "{":

@@ -17,6 +17,7 @@ Clip windows for each model family (``clips:``) are written as index tables
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from pathlib import Path
@@ -49,6 +50,9 @@ def prepare(store_dir: str | Path, out_dir: str | Path, representations: Mapping
             raise ValueError(f"prepare.representations.{name}.space must be 3d or 2d, got {space!r}")
         fn = _prepare_3d if space == "3d" else _prepare_2d
         summary["representations"][name] = fn(store, Path(out_dir) / name, rep)
+        # the representation's own description, read by split and training
+        (Path(out_dir) / name / "representation.json").write_text(json.dumps(
+            {k: v for k, v in rep.items() if k != "clips"} | {"space": space}, indent=1))
     summary["seconds"] = round(time.perf_counter() - t0, 3)
     return summary
 

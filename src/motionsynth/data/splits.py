@@ -18,12 +18,15 @@ come from the train split only.
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
+
+from .normalise import depth_scaled
 
 SPLITS = ("train", "val", "test", "unused")
 
@@ -83,23 +86,26 @@ def _stratified(meta: pd.DataFrame, target: str, fraction: float, stratify: str 
     return split
 
 
-def train_stats(rep_dir: Path, meta: pd.DataFrame, split: pd.Series) -> dict[str, np.ndarray]:
-    """Mean/std of pose (per dimension), root and controls over train frames only."""
+def train_stats(rep_dir: Path, meta: pd.DataFrame, split: pd.Series, depth_scale: bool = False) -> dict[str, np.ndarray]:
+    """Mean/std of pose (per joint and dimension), root and controls over train frames only.
+
+    With ``depth_scale`` (2-D), ``mean_depth`` is the centre joint's mean camera
+    depth over train frames, and the pose statistics are those of the
+    depth-scaled poses (see :mod:`.normalise`), as in c-SkeletonGAN.
+    """
     rows = meta[split == "train"]
     if len(rows) == 0:
         raise ValueError(f"{rep_dir}: the train split is empty")
     idx = np.concatenate([np.arange(o, o + f) for o, f in zip(rows["offset"], rows["frames"])])
-    out: dict[str, np.ndarray] = {}
-    for name in ("pose", "root", "controls"):
-        p = rep_dir / f"{name}.npy"
-        if not p.exists():
-            continue
-        x = np.asarray(np.load(p, mmap_mode="r")[idx], dtype=np.float64)
+    arrays = {n: np.asarray(np.load(rep_dir / f"{n}.npy", mmap_mode="r")[idx], dtype=np.float64)
+              for n in ("pose", "root", "controls") if (rep_dir / f"{n}.npy").exists()}
+    out: dict[str, np.ndarray] = {"train_frames": np.int64(len(idx))}
+    if depth_scale:
+        out["mean_depth"] = np.float64(arrays["root"][:, 2].mean())
+        arrays["pose"] = depth_scaled(arrays["pose"], arrays["root"][:, 2], float(out["mean_depth"]))
+    for name, x in arrays.items():
         out[f"{name}_mean"] = x.mean(0).astype(np.float32)
         out[f"{name}_std"] = np.maximum(x.std(0), 1e-6).astype(np.float32)
-    if "root_mean" in out and (rep_dir / "controls.npy").exists() is False:
-        out["mean_depth"] = np.float32(out["root_mean"][2])  # 2-D: mean camera depth of the centre joint
-    out["train_frames"] = np.int64(len(idx))
     return out
 
 
@@ -130,9 +136,10 @@ def split_dataset(processed: str | Path, out: str | Path, cfg: Mapping[str, Any]
         wins = {p.stem.removeprefix("windows_"): pd.read_parquet(p) for p in sorted(rep_dir.glob("windows_*.parquet"))}
         rep_out = out / rep_dir.name
         rep_out.mkdir(parents=True, exist_ok=True)
+        rep_cfg = json.loads((rep_dir / "representation.json").read_text())
         for name, protocol in cfg["protocols"].items():
             protocol = dict(protocol)
-            if protocol.get("space") and protocol["space"] != _space(rep_dir):
+            if protocol.get("space") and protocol["space"] != rep_cfg["space"]:
                 continue  # e.g. a view protocol that only applies to 2-D projections
             split = assign(meta, protocol, float(cfg.get("val_fraction", 0.1)), seed)
             table = pd.DataFrame({"sequence_id": meta["sequence_id"], "source_id": meta["source_id"],
@@ -142,7 +149,8 @@ def split_dataset(processed: str | Path, out: str | Path, cfg: Mapping[str, Any]
             for w in wins.values():
                 check_no_leak(table, w)
             table.to_csv(rep_out / f"{name}.csv", index=False)
-            np.savez(rep_out / f"{name}_stats.npz", **train_stats(rep_dir, meta, split))
+            np.savez(rep_out / f"{name}_stats.npz",
+                     **train_stats(rep_dir, meta, split, bool(rep_cfg.get("depth_scale", False))))
             s = table["split"]
             summary[f"{rep_dir.name}/{name}"] = {
                 "sequences": {k: int((s == k).sum()) for k in SPLITS},
@@ -150,7 +158,3 @@ def split_dataset(processed: str | Path, out: str | Path, cfg: Mapping[str, Any]
                 "windows": {fam: {k: int(w["seq"].map(s).eq(k).sum()) for k in SPLITS} for fam, w in wins.items()},
             }
     return summary
-
-
-def _space(rep_dir: Path) -> str:
-    return "3d" if (rep_dir / "controls.npy").exists() else "2d"
