@@ -46,3 +46,30 @@ def make_zip(path: Path, members: dict[str, bytes | str]) -> Path:
 @pytest.fixture
 def repo() -> Path:
     return REPO
+
+
+@pytest.fixture(scope="module")
+def one_thread():
+    """Small models: one thread is several times faster than two, and immune to a busy second core."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def overfit(model, batch, steps: int = 200, lr: float = 3e-3) -> tuple[float, float]:
+    """Train ``model`` on one batch with Adam; return (first loss, last loss)."""
+    import torch
+
+    opt = torch.optim.Adam(model.parameters(), lr=lr)
+    first = last = None
+    for _ in range(steps):
+        loss, _ = model.loss(batch)
+        first = loss.item() if first is None else first
+        last = loss.item()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return first, last

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping
 
 log = logging.getLogger(__name__)
+_ACTIVE = {"on": False}  # inside a run: log_metrics / log_artifact write to it
 
 
 def tracking_uri(root: str | Path) -> str:
@@ -23,6 +24,19 @@ def tracking_uri(root: str | Path) -> str:
     if env:
         return env
     return f"sqlite:///{Path(root).resolve() / 'mlflow.db'}"
+
+
+def set_experiment(mlflow, uri: str, experiment: str):
+    """Select (creating if needed) ``experiment``. For a local SQLite store, artifacts go to
+    ``mlartifacts/`` beside the database rather than to the working directory."""
+    exp = mlflow.get_experiment_by_name(experiment)
+    if exp is None and uri.startswith("sqlite:///"):
+        art = Path(uri[len("sqlite:///"):]).parent / "mlartifacts"
+        try:
+            mlflow.create_experiment(experiment, artifact_location=art.as_uri())
+        except Exception:  # created meanwhile by a parallel job
+            pass
+    return mlflow.set_experiment(experiment)
 
 
 def is_rank_zero() -> bool:
@@ -87,15 +101,13 @@ def _serve(uri: str, experiment: str) -> None:
 
     logging.getLogger("alembic").setLevel(logging.WARNING)
     mlflow.set_tracking_uri(uri)
-    mlflow.set_experiment(experiment)
+    set_experiment(mlflow, uri, experiment)
     data = sys.stdin.read()
     if not data.strip():  # the stage failed before submitting: log nothing
         return
     rec = json.loads(data)
     with mlflow.start_run(run_name=rec["run_name"], tags=rec["tags"]):
-        items = list(rec["params"].items())
-        for i in range(0, len(items), 100):
-            mlflow.log_params(dict(items[i:i + 100]))
+        _log_params(mlflow, rec["params"])
         if rec["metrics"]:
             mlflow.log_metrics(rec["metrics"])
         for a in rec["artifacts"]:
@@ -103,28 +115,39 @@ def _serve(uri: str, experiment: str) -> None:
 
 
 @contextlib.contextmanager
-def run(root: str | Path, experiment: str, run_name: str, params: Mapping[str, Any] | None = None,
-        tags: Mapping[str, str] | None = None) -> Iterator[Any]:
-    """Open an MLflow run (rank 0 only; other ranks get ``None``) and log ``params``."""
-    if not is_rank_zero():
+def resumable_run(root: str | Path, experiment: str, run_name: str, run_id: str | None = None,
+                  params: Mapping[str, Any] | None = None, tags: Mapping[str, str] | None = None,
+                  enabled: bool = True) -> Iterator[Any]:
+    """An MLflow run for a long job, continued (same run id) when the job resumes from a checkpoint.
+
+    Yields the active run, or ``None`` on non-zero ranks or when ``enabled`` is false;
+    :func:`log_metrics` and :func:`log_artifact` are no-ops outside such a run.
+    """
+    if not (enabled and is_rank_zero()):
         yield None
         return
-    import mlflow  # imported lazily: it costs ~2 s
+    import mlflow
 
     logging.getLogger("alembic").setLevel(logging.WARNING)
-    mlflow.set_tracking_uri(tracking_uri(root))
-    mlflow.set_experiment(experiment)
-    with mlflow.start_run(run_name=run_name, tags=dict(tags or {})) as active:
-        if params:
-            flat = {k: _short(v) for k, v in flatten(params).items()}
-            items = list(flat.items())
-            for i in range(0, len(items), 100):
-                mlflow.log_params(dict(items[i:i + 100]))
+    uri = tracking_uri(root)
+    mlflow.set_tracking_uri(uri)
+    set_experiment(mlflow, uri, experiment)
+    resume = None
+    if run_id:
+        try:
+            mlflow.get_run(run_id)
+            resume = run_id
+        except Exception:  # the run was deleted or lives in another store: start a new one
+            resume = None
+    with mlflow.start_run(run_id=resume, run_name=None if resume else run_name,
+                          tags=dict(tags or {})) as active, _activated():
+        if not resume:
+            _log_params(mlflow, params)
         yield active
 
 
 def log_metrics(metrics: Mapping[str, float], step: int | None = None) -> None:
-    if not is_rank_zero():
+    if not (is_rank_zero() and _ACTIVE["on"]):
         return
     import mlflow
 
@@ -134,11 +157,27 @@ def log_metrics(metrics: Mapping[str, float], step: int | None = None) -> None:
 
 
 def log_artifact(path: str | Path, artifact_path: str | None = None) -> None:
-    if not is_rank_zero():
+    if not (is_rank_zero() and _ACTIVE["on"]):
         return
     import mlflow
 
     mlflow.log_artifact(str(path), artifact_path)
+
+
+@contextlib.contextmanager
+def _activated() -> Iterator[None]:
+    _ACTIVE["on"] = True
+    try:
+        yield
+    finally:
+        _ACTIVE["on"] = False
+
+
+def _log_params(mlflow, params: Mapping[str, Any] | None) -> None:
+    """Log (flattened, shortened) params in batches of 100, MLflow's limit per call."""
+    items = [(k, _short(v)) for k, v in flatten(params or {}).items()]
+    for i in range(0, len(items), 100):
+        mlflow.log_params(dict(items[i:i + 100]))
 
 
 def _short(v: Any) -> str:

@@ -1,0 +1,22 @@
+"""DVC stage `train@<dataset>-<model>`: prepared windows -> models/<dataset>/<model>/ (+ MLflow run).
+
+    python pipelines/train.py dataset=bandai2_locomotion model=vae_lstm [train.lr=1e-3 ...]
+"""
+
+import hydra
+from _common import log, progress, write_json
+from omegaconf import DictConfig, OmegaConf
+
+from motionsynth.training.run import run
+
+
+@hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    summary = run(OmegaConf.to_container(cfg, resolve=True), progress=progress(cfg))
+    write_json(f"{cfg.paths.reports}/metrics/train/{cfg.dataset.name}/{cfg.model.name}.json", summary)
+    log.info("train %s on %s: %d epochs, best %s = %.5f", cfg.model.name, cfg.dataset.name,
+             summary["epochs_run"], summary["monitor"], summary.get(summary["monitor"], float("nan")))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,100 @@
+"""The interface every model implements, and the batch it trains on.
+
+Shapes at every boundary are ``[batch, time, joints, dims]``:
+
+* ``Batch.pose``     float32 ``[B, T, J, D]``: the window's dense frames, normalised
+  with train-split statistics (``D`` = 3 for 3-D data, 2 for 2-D views);
+* ``Batch.controls`` float32 ``[B, T, 3]`` normalised (forward, sideways, turn) or ``None``;
+* ``Batch.labels``   int64 ``[B]`` class indices, or ``None`` for unlabelled data;
+* ``Batch.every``    sparse-pose stride ``k`` of the window (GlocalNet family): the
+  sparse poses are ``pose[:, ::k]``; 1 for dense-only families.
+
+``DataSpec`` tells a model the sizes it is built for; a model is constructed as
+``Model(spec, **hyperparameters)`` from its Hydra config.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor, nn
+
+
+@dataclass(frozen=True)
+class DataSpec:
+    joints: int               # J
+    dims: int                 # D (3 or 2)
+    num_classes: int = 0      # 0: no class labels
+    controls: int = 0         # 3 where the dataset has control signals, else 0
+    fps: float = 30.0
+    window: int = 240         # frames per training window (dense)
+    every: int = 1            # sparse stride k of the training windows (GlocalNet family)
+
+    @property
+    def pose_features(self) -> int:
+        return self.joints * self.dims
+
+
+@dataclass
+class Batch:
+    pose: Tensor
+    controls: Tensor | None = None
+    labels: Tensor | None = None
+    every: int = 1
+    extra: dict = field(default_factory=dict)
+
+    def to(self, device: torch.device | str) -> "Batch":
+        mv = lambda t: t.to(device, non_blocking=True) if isinstance(t, Tensor) else t  # noqa: E731
+        return Batch(mv(self.pose), mv(self.controls), mv(self.labels), self.every,
+                     {k: mv(v) for k, v in self.extra.items()})
+
+    @property
+    def size(self) -> int:
+        return int(self.pose.shape[0])
+
+
+class MotionModel(nn.Module):
+    """Base class of every model.
+
+    Subclasses implement :meth:`loss` (the training objective, with a dict of
+    named float terms for logging) and :meth:`generate`. ``seed_frames`` is the
+    number of ground-truth frames a model is given before it predicts (the
+    evaluation protocol reads it; VAE-LSTM: 0 or 4, baselines: 60 on locomotion).
+    """
+
+    #: which window family of ``prepare`` the model trains on: "vae_lstm" or "glocal"
+    family: str = "vae_lstm"
+    #: whether the model consumes control signals when the dataset has them
+    uses_controls: bool = False
+    #: whether the model conditions on class labels when the dataset has them
+    uses_labels: bool = False
+
+    def __init__(self, spec: DataSpec):
+        super().__init__()
+        self.spec = spec
+
+    def loss(self, batch: Batch) -> tuple[Tensor, dict[str, float]]:
+        raise NotImplementedError
+
+    @torch.no_grad()
+    def generate(self, seed: Tensor | None, controls: Tensor | None = None, labels: Tensor | None = None,
+                 length: int = 240, num_samples: int = 1) -> Tensor:
+        """Synthesize motion.
+
+        ``seed`` ``[B, S, J, D]`` ground-truth frames (``S`` may be 0 / ``None``);
+        ``controls`` ``[B, length, 3]`` for control-driven models; ``labels`` ``[B]``
+        or ``[B, length]`` (a class per frame, for transitions). Returns
+        ``[B * num_samples, length, J, D]``: the full sequence, seed frames
+        included, so that ``out[:, :S] == seed`` for models that copy their seed.
+        """
+        raise NotImplementedError
+
+    @staticmethod
+    def flat(pose: Tensor) -> Tensor:
+        """``[B, T, J, D]`` -> ``[B, T, J*D]``."""
+        return pose.reshape(pose.shape[0], pose.shape[1], -1)
+
+    def unflat(self, x: Tensor) -> Tensor:
+        """``[B, T, J*D]`` -> ``[B, T, J, D]``."""
+        return x.reshape(x.shape[0], x.shape[1], self.spec.joints, self.spec.dims)

@@ -1,0 +1,390 @@
+"""VAE-LSTM: the recurrent variational autoencoder of Habibie et al. 2017,
+"A Recurrent Variational Autoencoder for Human Motion Synthesis" (BMVC), sections 3-4.
+
+Architecture (Fig. 1), with the paper's sizes (``sizes.paper`` in ``conf/model/vae_lstm.yaml``)::
+
+    controls C [B,T,3] --dropout--> control-signal encoder (eq. 6) ------> h^c [B,T/4,128]
+    poses    X [B,T,63] -dropout--> inference network (eq. 6) -> (mu, logvar) [B,T/4,128] each
+                                    z_t = mu_t + sigma_t * eps                  (eq. 3)
+    (z_t or c_{t-1}, h^c_t) --> modified LSTM cell (eqs. 7-9) --> c_t; canvas m_c = [c_1 .. c_{T/4}]
+    canvas [B,T/4,128] --> 2 x (upsample x2, conv 25, ELU) --> 1x1 conv --> X_hat [B,T,63]
+
+Shapes: ``B`` batch, ``T`` frames (240 in the paper, any multiple of 4 here), ``T' = T/4``
+pooled steps, ``P = J*D`` pose features (63 = 21 joints x 3 in the paper), ``H`` LSTM units
+(128), ``Hc`` control features (128). Every tensor inside is time-major ``[B, T, C]``, like
+the interface; convolutions run on that layout directly (:func:`conv_time`).
+
+Where the paper is vague, and what this file does
+--------------------------------------------------
+* **Pooling factor.** Sec. 4.2 says "both pooling window and stride are of size 1, thus reducing
+  the dimensionality from 240 to 60 frames"; a stride of 1 cannot reduce anything, and
+  240 -> 60 with two pooling layers (Sec. 4.3: "as we use two max pooling layers in the
+  encoder, this corresponds to 4 initial frames") needs window = stride = 2 in each.
+  So each encoder block is conv (width 25, 'same' zero padding) -> ELU -> max-pool(2, 2), and
+  the overall factor is ``2 ** blocks`` = 4. Eq. 6 applies ELU before the pool; ELU is
+  monotone, so ``pool(elu(x)) == elu(pool(x))`` and we pool first (half the ELU work).
+* **Inference network input.** Fig. 1 and Sec. 4.2 ("(63, 25)*64") feed it the 63 joint
+  coordinates only, so it does not see the controls: q(z_t | x) (Sec. 3.2). Here its input
+  has ``spec.joints * spec.dims`` channels.
+* **Posterior parameters.** The inference network's last block has 256 channels; we read
+  256 = 2 x 128 (mean and log-variance of a 128-d latent) but, rather than splitting the
+  ELU'd features (which would bound mu and log sigma below by -1), add a per-step linear map
+  (a 1x1 conv) from those features to ``(mu, logvar)``, each ``[B, T', H]``.
+* **Latent size.** Eq. 9 applies the same ``W_c`` to ``z_t`` (training) and to ``c_{t-1}``
+  (test), so dim z = dim c = ``hidden`` (128). It is not a separate hyperparameter.
+* **Eq. 9, training case.** "We set the cell state of the LSTM at every time step equal to
+  the corresponding latent code": the state fed into step t is ``z_t`` in place of
+  ``c_{t-1}``, in the gates (eqs. 7-8) as well as in eq. 9. Algorithm 1 writes the cell as
+  one function ``RNN^dec(state, h^c_t)`` whose state is ``z_1`` at t=1 and ``c(t-1)`` after;
+  during training the state is ``z_t`` at every t. So training has no recurrence: all T'
+  steps are computed in parallel. At test time (eq. 9, test case) the cell runs on its own
+  cell state from a single ``z_1``: ``c_1 = cell(z_1, h_1)``, ``c_t = cell(c_{t-1}, h_t)``.
+  The cell never sees its own output as input during training; that train/test gap is the
+  paper's design, not fixed here.
+* **alpha in eq. 9** is "the non-linear activation function" of eq. 6, i.e. ELU (Sec. 4.2:
+  "throughout the model we adopt ELU"), not tanh. Eq. 9 has no bias terms; the gate biases
+  of eqs. 7-8 (``b_ic + b_ih``, ``b_fc + b_fh``) are merged into one vector per gate.
+* **Output decoder.** Sec. 3.3: "the inverse of the encoding network"; Sec. 4.2 lists
+  (128, 25)*128 and (66, 25)*128 convolutions, upsampling and activations. The paper's 66
+  output channels include the 3 controls; controls are inputs at test time, so we
+  reconstruct the pose only: 2 x (nearest x2 upsampling, conv width 25 -> ``dec_channels``,
+  ELU), then a 1x1 conv to the P pose features with no activation (normalised poses are
+  unbounded). Nearest upsampling followed by a conv is computed exactly in polyphase form
+  (:class:`UpConv`): half the FLOPs of upsampling first.
+* **Reconstruction likelihood.** "The negative log probability under a Gaussian" (eq. 5,
+  L_x) with a fixed, isotropic variance ``recon_var`` (default 1 = the variance of every
+  feature after normalisation), up to its additive constant ``P/2 log(2 pi recon_var)``
+  per frame, which is dropped: ``L_x = sum (x - x_hat)^2 / (2 recon_var)``.
+  Smaller ``recon_var`` weighs reconstruction more against the KL (like beta = recon_var).
+* **Loss scale.** ``loss = (L_x + L_z) / (B*T*P) + l1_term``: the negative ELBO of eq. 5
+  (one sample per step, eq. 4's per-step KL summed over steps and latent dimensions),
+  divided by the number of pose scalars, so it reads in nats per coordinate.
+* **"l1 = 0.1 regularization"** (Sec. 4.2) is read as ``0.1 * sum_W mean(|W|)`` over the
+  weight tensors (biases excluded), the per-layer cost ``gamma * mean(|W|)`` of the
+  Theano framework of Holden et al. [9, 10] that the paper builds on. The stacked gate
+  matrices of the cell count as one tensor each (``[W_ic; W_fc; W_c]``, ``[W_ih; W_fh; W_h]``).
+* **Dropout** (Sec. 4.2: "dropout on both the joint positions and control signals") is
+  applied to the two encoder inputs during training only; the rate is not given: 0.2.
+* **KL warm-up.** The paper mentions none; there is none (no ``set_epoch``).
+* **Posterior from 4 frames** (Table 1): the inference network is run on the first
+  ``factor`` (= 4) seed frames alone, with the same zero 'same' padding it sees at window
+  boundaries in training, giving one pooled step and so ``q(z_1 | x_1:4)``. Further seed
+  frames are not used (the paper's decoder takes a single latent). Generated sequences are
+  the model's own output everywhere: seed frames are conditioning, not copied into it.
+  The paper's alternative of a fresh prior sample z_t per step at test time ("both
+  approaches work equally well") is not implemented.
+
+Speed (generation of a crowd is the use case; ``bench/generate_vae_lstm.py``)
+----------------------------------------------------------------------------
+All characters are one batch; only the T' = T/4 roll-out steps loop in Python. The control
+half of every gate (``[W_ih; W_fh; W_h] h^c_t``) is one matmul over all steps before the
+loop; each step is one fused ``[W_ic; W_fc; W_c]`` matmul and four in-place elementwise
+kernels (:meth:`VaeLstmCell.rollout`), on one thread (:func:`_one_thread`). Convolutions
+run channels-last on the time-major layout (:func:`conv_time`), the decoder's upsampling
+convolutions in polyphase form (:class:`UpConv`, ~half the FLOPs), and ELUs work in place
+when no graph is recorded.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Iterator
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from .base import Batch, DataSpec, MotionModel
+
+
+@contextmanager
+def _one_thread(device: torch.device) -> Iterator[None]:
+    """Run the block on one intra-op CPU thread (then restore the process's thread count).
+
+    The roll-out is 60 steps of six small kernels (a ``[B, H] x [H, 3H]`` matmul and ``[B, 2H]``
+    elementwise ops); with 2 threads each kernel is a thread barrier. Paper-size roll-out of
+    1,000 characters on a 2-core machine: 0.15 s on one thread, 0.32 s on two, and 3.0 s on two
+    when another process keeps a core busy (every barrier then waits for a time slice).
+    Whole-sequence work (the convolutions) keeps all threads. The thread count is process-wide
+    state, hence the restore in ``finally``.
+    """
+    n = torch.get_num_threads()
+    if device.type != "cpu" or n == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
+
+
+def _elu(x: Tensor) -> Tensor:
+    """ELU, in place when no graph is being recorded (generation)."""
+    return F.elu(x) if torch.is_grad_enabled() else F.elu_(x)
+
+
+def conv_time(x: Tensor, weight: Tensor, bias: Tensor | None, padding: int) -> Tensor:
+    """A 1-D convolution along time of a time-major ``[B, T, C_in]`` tensor -> ``[B, T', C_out]``.
+
+    ``weight`` is ``[C_out, C_in, K]`` as in ``nn.Conv1d``. It runs as a 2-D conv of the
+    channels-last view ``[B, C_in, 1, T]`` of ``x`` (no copy); oneDNN/cuDNN then write the
+    output channels-last, i.e. ``[B, T', C_out]`` contiguous, so no layout copies are needed
+    between layers (and it is faster on CPU than ``conv1d`` on ``[B, C, T]``).
+    """
+    y = F.conv2d(x.transpose(1, 2).unsqueeze(2), weight.unsqueeze(2), bias, padding=(0, padding))
+    return y.squeeze(2).transpose(1, 2)
+
+
+class TimeConv(nn.Conv1d):
+    """``nn.Conv1d`` with 'same' padding (odd width) applied to time-major ``[B, T, C]`` tensors."""
+
+    def __init__(self, c_in: int, c_out: int, kernel: int):
+        super().__init__(c_in, c_out, kernel, padding=kernel // 2)
+
+    def forward(self, x: Tensor) -> Tensor:
+        return conv_time(x, self.weight, self.bias, self.padding[0])
+
+
+class ConvEncoder(nn.Module):
+    """Eq. 6 with ``len(channels)`` blocks: conv (odd width, 'same') -> ELU -> max-pool(2, 2).
+
+    ``[B, T, c_in]`` -> ``[B, T / 2**len(channels), channels[-1]]``.
+    """
+
+    def __init__(self, c_in: int, channels: list[int], kernel: int):
+        super().__init__()
+        widths = [c_in, *channels]
+        self.convs = nn.ModuleList(TimeConv(a, b, kernel) for a, b in zip(widths, widths[1:]))
+
+    def forward(self, x: Tensor) -> Tensor:
+        for conv in self.convs:
+            y = conv(x)
+            B, T, C = y.shape
+            x = _elu(y.reshape(B, T // 2, 2, C).amax(dim=2))  # Psi(alpha(x (x) W + b)): ELU is monotone
+        return x
+
+
+class UpConv(nn.Module):
+    """Nearest-neighbour x2 upsampling followed by a 'same' conv of odd width ``K`` (the
+    decoder's "upsampling + convolution", Sec. 3.3 / 4.2), computed exactly in polyphase form.
+
+    With ``p = K // 2`` and ``u[n] = x[n // 2]``, output frame ``2m + r`` (``r`` in {0, 1}) is
+    ``sum_k w[k] u[2m + r + k - p] = sum_d v_r[d] x[m + d]`` with
+    ``v_r[d] = sum_{k : (r + k - p) // 2 = d} w[k]`` and ``|d| <= q = (p + 1) // 2``. Both phases
+    are one conv of the low-rate input with ``2 * c_out`` filters of width ``2q + 1`` (13 for
+    K = 25); in the time-major layout its ``[B, L, 2, c_out]`` output *is* the interleaved
+    ``[B, 2L, c_out]`` sequence. FLOPs: ``2 * c_in * c_out * (2q + 1) * 2L`` instead of
+    ``2 * c_in * c_out * K * 2L``. The parameters are the K-tap filter of ``self.conv``;
+    :meth:`reference` computes the same thing the slow way. ``[B, L, c_in] -> [B, 2L, c_out]``.
+    """
+
+    def __init__(self, c_in: int, c_out: int, kernel: int):
+        super().__init__()
+        self.conv = nn.Conv1d(c_in, c_out, kernel, padding=kernel // 2)  # holds the parameters
+        p = kernel // 2
+        self.q = (p + 1) // 2
+        fold = torch.zeros(2, 2 * self.q + 1, kernel)  # fold[r, d + q, k] = 1 where (r + k - p) // 2 == d
+        for r in range(2):
+            for k in range(kernel):
+                fold[r, (r + k - p) // 2 + self.q, k] = 1.0
+        self.register_buffer("fold", fold, persistent=False)
+
+    def forward(self, x: Tensor) -> Tensor:
+        B, L, _ = x.shape
+        c_out, c_in, _ = self.conv.weight.shape
+        w = torch.einsum("oik,rjk->roij", self.conv.weight, self.fold).reshape(2 * c_out, c_in, 2 * self.q + 1)
+        y = conv_time(x, w, self.conv.bias.repeat(2), self.q)   # [B, L, 2 * c_out], channel r * c_out + o
+        return y.reshape(B, 2 * L, c_out)
+
+    def reference(self, x: Tensor) -> Tensor:
+        return self.conv(x.repeat_interleave(2, dim=1).transpose(1, 2)).transpose(1, 2)
+
+
+class VaeLstmCell(nn.Module):
+    """The modified LSTM cell of eqs. 7-9 (no output gate; the cell state is the output).
+
+    ``cell(s, g) = ELU(f * W_c s + i * W_h h)`` with ``i = sigmoid(W_ic s + W_ih h + b_i)``,
+    ``f = sigmoid(W_fc s + W_fh h + b_f)``: ``s`` is ``z_t`` in training and ``c_{t-1}`` at
+    test time. The control half ``g = [W_ih h, W_fh h, W_h h]`` does not depend on the state,
+    so it is computed for all steps at once (:meth:`control_terms`), and the three state
+    matrices are one fused ``[3H, H]`` matmul per step.
+    """
+
+    def __init__(self, hidden: int, ctrl_features: int):
+        super().__init__()
+        self.hidden = hidden
+        self.state = nn.Linear(hidden, 3 * hidden, bias=False)          # [W_ic; W_fc; W_c]
+        self.ctrl = nn.Linear(ctrl_features, 3 * hidden, bias=False)    # [W_ih; W_fh; W_h]
+        self.gate_bias = nn.Parameter(torch.zeros(2 * hidden))          # [b_ic + b_ih; b_fc + b_fh]
+
+    def control_terms(self, hc: Tensor) -> Tensor:
+        """``h^c`` ``[..., Hc]`` -> ``g = [W_ih h, W_fh h, W_h h]`` ``[..., 3H]`` (gate biases added in the step)."""
+        return self.ctrl(hc)
+
+    def forward(self, s: Tensor, g: Tensor) -> Tensor:
+        """One step for any leading shape: ``s`` ``[..., H]``, ``g`` ``[..., 3H]`` -> ``c`` ``[..., H]``."""
+        H = self.hidden
+        a = self.state(s)                                                                     # [W_ic s, W_fc s, W_c s]
+        i, f = torch.sigmoid(a[..., :2 * H] + g[..., :2 * H] + self.gate_bias).chunk(2, dim=-1)  # eqs. 7, 8
+        return F.elu(f * a[..., 2 * H:] + i * g[..., 2 * H:])                                  # eq. 9
+
+    @torch.no_grad()
+    def rollout(self, z1: Tensor, g: Tensor) -> Tensor:
+        """Eq. 9 test case / Algorithm 1 (no gradients): ``z1`` ``[B, H]``, ``g`` ``[B, T', 3H]`` ->
+        canvas ``[B, T', H]``. The same arithmetic as :meth:`forward`, fed back on itself, with
+        the step's six kernels working in place (this loop is the generation hot path)."""
+        H = self.hidden
+        w = self.state.weight.t()                        # [H, 3H] = [W_ic; W_fc; W_c]^T
+        g = g.transpose(0, 1).clone(memory_format=torch.contiguous_format)  # [T', B, 3H], a slab per step
+        g[..., :2 * H] += self.gate_bias                                     # (a copy: the caller's g is kept)
+        canvas = g.new_empty(g.shape[0], g.shape[1], H)  # [T', B, H]
+        c = z1
+        with _one_thread(g.device):
+            for t in range(g.shape[0]):                      # the unavoidable recurrence (T' = T/4 steps)
+                a = torch.mm(c, w)                                        # [W_ic c, W_fc c, W_c c]
+                gates = a[:, :2 * H].add_(g[t, :, :2 * H]).sigmoid_()    # eqs. 7, 8: [i, f]
+                c = torch.mul(a[:, 2 * H:], gates[:, H:], out=canvas[t])  # f * W_c c_{t-1}
+                F.elu_(c.addcmul_(gates[:, :H], g[t, :, 2 * H:]))         # eq. 9: + i * W_h h_t, ELU
+        return canvas.transpose(0, 1).contiguous()
+
+
+class VAELSTM(MotionModel):
+    """Habibie et al. 2017 VAE-LSTM (see the module docstring).
+
+    Hyperparameters: ``ctrl_channels`` control-encoder widths (paper 64, 128);
+    ``inf_channels`` inference-network widths (paper 64, 256); ``hidden`` LSTM units =
+    latent size (paper 128); ``dec_channels`` upsampling-decoder widths (paper 128, 128);
+    ``kernel`` odd conv width (paper 25); ``dropout`` input dropout rate; ``l1`` weight of
+    the mean-|W| penalty (paper 0.1); ``recon_var`` the Gaussian likelihood's variance;
+    ``seed_frames`` frames ``predict`` conditions on: 0 (prior sample, Algorithm 1) or
+    >= 4 (posterior of the first pooled step, Table 1). The three width lists must have
+    the same length ``n`` (paper 2): the time factor is ``2 ** n``.
+    """
+
+    family = "vae_lstm"
+    uses_controls = True
+    uses_labels = False
+
+    def __init__(self, spec: DataSpec, ctrl_channels: list[int] = (64, 128), inf_channels: list[int] = (64, 256),
+                 hidden: int = 128, dec_channels: list[int] = (128, 128), kernel: int = 25, dropout: float = 0.2,
+                 l1: float = 0.1, recon_var: float = 1.0, seed_frames: int = 4):
+        super().__init__(spec)
+        ctrl_channels, inf_channels, dec_channels = list(ctrl_channels), list(inf_channels), list(dec_channels)
+        self.factor = 2 ** len(ctrl_channels)
+        problems = []
+        if spec.controls != 3:
+            problems.append(f"VAE-LSTM needs the 3 control signals (spec.controls == 3), got {spec.controls}")
+        if not (len(ctrl_channels) == len(inf_channels) == len(dec_channels) >= 1):
+            problems.append(f"ctrl_channels, inf_channels and dec_channels need the same number (>= 1) of blocks, "
+                            f"got {ctrl_channels}, {inf_channels}, {dec_channels}")
+        sizes = {"ctrl_channels": ctrl_channels, "inf_channels": inf_channels, "dec_channels": dec_channels,
+                 "hidden": [hidden], "kernel": [kernel]}
+        for name, vals in sizes.items():
+            if not all(isinstance(v, int) and v > 0 for v in vals):
+                problems.append(f"{name} must be positive integers, got {vals}")
+        if isinstance(kernel, int) and kernel % 2 == 0:
+            problems.append(f"kernel must be odd for 'same' padding, got {kernel}")
+        if not 0.0 <= dropout < 1.0:
+            problems.append(f"dropout must be in [0, 1), got {dropout}")
+        if not l1 >= 0.0:
+            problems.append(f"l1 must be >= 0, got {l1}")
+        if not recon_var > 0.0:
+            problems.append(f"recon_var must be > 0, got {recon_var}")
+        if spec.window <= 0 or spec.window % self.factor:
+            problems.append(f"spec.window must be a positive multiple of the pooling factor {self.factor}, "
+                            f"got {spec.window}")
+        if not (seed_frames == 0 or self.factor <= seed_frames < spec.window):
+            problems.append(f"seed_frames must be 0 (prior) or in [{self.factor}, window={spec.window}) "
+                            f"(posterior of the first pooled step), got {seed_frames}")
+        if problems:
+            raise ValueError("VAELSTM: " + "; ".join(problems))
+
+        self.hidden, self.dropout, self.l1, self.recon_var = hidden, float(dropout), float(l1), float(recon_var)
+        self.seed_frames = int(seed_frames)
+        P = spec.pose_features
+        self.ctrl_encoder = ConvEncoder(spec.controls, ctrl_channels, kernel)         # Sec. 3.2, eq. 6
+        self.inference = ConvEncoder(P, inf_channels, kernel)                       # Sec. 3.2, eq. 6
+        self.posterior_head = nn.Linear(inf_channels[-1], 2 * hidden)               # -> (mu, logvar)
+        self.cell = VaeLstmCell(hidden, ctrl_channels[-1])                          # eqs. 7-9
+        widths = [hidden, *dec_channels]
+        self.ups = nn.ModuleList(UpConv(a, b, kernel) for a, b in zip(widths, widths[1:]))  # Sec. 3.3
+        self.out = nn.Linear(dec_channels[-1], P)                                   # 1x1 conv
+
+    # ------------------------------------------------------------------ pieces
+    def encode_controls(self, controls: Tensor) -> Tensor:
+        """``[B, T, 3]`` -> control terms ``g`` ``[B, T', 3H]`` of the cell (from ``h^c`` ``[B, T', Hc]``)."""
+        return self.cell.control_terms(self.ctrl_encoder(controls))
+
+    def posterior(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """Flat poses ``[B, T, P]`` -> ``mu, logvar`` ``[B, T', H]`` of q(z_t | x)."""
+        return self.posterior_head(self.inference(x)).chunk(2, dim=-1)
+
+    def decode(self, canvas: Tensor) -> Tensor:
+        """CNN^dec: canvas ``[B, T', H]`` -> flat poses ``[B, T, P]``."""
+        h = canvas
+        for up in self.ups:
+            h = _elu(up(h))
+        return self.out(h)
+
+    def _check_controls(self, controls: Tensor | None, length: int) -> None:
+        if controls is None:
+            raise ValueError("VAE-LSTM is driven by control signals: controls [B, T, 3] are required")
+        if controls.dim() != 3 or controls.shape[-1] != self.spec.controls:
+            raise ValueError(f"controls must be [B, T, {self.spec.controls}], got {tuple(controls.shape)}")
+        if length <= 0 or length % self.factor:
+            raise ValueError(f"length must be a positive multiple of the pooling factor {self.factor}, got {length}")
+
+    # ------------------------------------------------------------------ training
+    def loss(self, batch: Batch) -> tuple[Tensor, dict[str, float]]:
+        x = self.flat(batch.pose)                                        # [B, T, P]
+        self._check_controls(batch.controls, x.shape[1])
+        x_in = F.dropout(x, self.dropout, self.training)                 # Sec. 4.2 input dropout
+        c_in = F.dropout(batch.controls, self.dropout, self.training)
+        mu, logvar = self.posterior(x_in)                                # [B, T', H]
+        z = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)          # eq. 3
+        canvas = self.cell(z, self.encode_controls(c_in))                # eq. 9, training case: all steps at once
+        x_hat = self.decode(canvas)                                      # [B, T, P]
+        n = x.numel()
+        sq = (x_hat - x).pow(2).sum()
+        nll = 0.5 * sq / self.recon_var                                  # L_x, up to a constant
+        kl = 0.5 * (mu.pow(2) + logvar.exp() - logvar - 1.0).sum()        # eq. 4, summed over t and dims
+        reg = sum(p.abs().mean() for p in self.parameters() if p.dim() > 1)
+        loss = (nll + kl) / n + self.l1 * reg                            # eq. 5 + Sec. 4.2 l1
+        logs = {"nll": nll.item() / n, "kl": kl.item() / n, "mse": sq.item() / n,
+                "kl_per_step": kl.item() / (mu.shape[0] * mu.shape[1]), "l1": reg.item()}
+        return loss, logs
+
+    # ------------------------------------------------------------------ synthesis
+    @torch.no_grad()
+    def generate(self, seed: Tensor | None, controls: Tensor | None = None, labels: Tensor | None = None,
+                 length: int = 240, num_samples: int = 1) -> Tensor:
+        """Algorithm 1. ``seed`` None or ``[B, 0, J, D]``: ``z_1 ~ N(0, I)`` (prior);
+        ``[B, S >= 4, J, D]``: ``z_1 ~ q(z_1 | first 4 frames)``. ``controls`` ``[B, length, 3]``.
+        Returns ``[B * num_samples, length, J, D]`` (sample ``s`` of item ``b`` at ``b * num_samples + s``)."""
+        self._check_controls(controls, length)
+        if controls.shape[1] != length:
+            raise ValueError(f"controls cover {controls.shape[1]} frames but length={length}")
+        if num_samples < 1:
+            raise ValueError(f"num_samples must be >= 1, got {num_samples}")
+        B = controls.shape[0]
+        g = self.encode_controls(controls.repeat_interleave(num_samples, dim=0))  # [B*ns, T', 3H]
+        if seed is None or seed.shape[1] == 0:
+            z1 = torch.randn(B * num_samples, self.hidden, device=g.device, dtype=g.dtype)
+        else:
+            if seed.shape[0] != B:
+                raise ValueError(f"seed has {seed.shape[0]} items but controls {B}")
+            if seed.shape[1] < self.factor:
+                raise ValueError(f"the posterior of the first pooled step needs {self.factor} seed frames, "
+                                 f"got {seed.shape[1]} (pass 0 frames to sample the prior)")
+            mu, logvar = self.posterior(self.flat(seed[:, :self.factor]))      # [B, 1, H]
+            mu, logvar = mu[:, 0].repeat_interleave(num_samples, 0), logvar[:, 0].repeat_interleave(num_samples, 0)
+            z1 = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)            # eq. 3
+        canvas = self.cell.rollout(z1, g)                                       # eq. 9, test case
+        return self.unflat(self.decode(canvas))
+
+    @torch.no_grad()
+    def predict(self, batch: Batch) -> Tensor:
+        """The batch window from its first ``seed_frames`` frames and its ground-truth controls."""
+        seed = batch.pose[:, :self.seed_frames] if self.seed_frames else None
+        return self.generate(seed, batch.controls, length=batch.pose.shape[1])

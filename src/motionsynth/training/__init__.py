@@ -1,0 +1,1 @@
+"""Training: data loading from prepared windows, the trainer loop, checkpoints and resume."""

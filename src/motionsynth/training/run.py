@@ -1,0 +1,170 @@
+"""One training run from a resolved config: data, model, trainer, MLflow, artifacts.
+
+Everything that can be wrong in the config (unknown model, non-positive learning
+rate, a window the model cannot take) fails here, before any epoch runs.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+
+from .. import tracking
+from ..models.base import MotionModel
+from .checkpoint import fingerprint
+from .data import open_split
+from .trainer import TrainConfig, Trainer, seed_everything
+
+log = logging.getLogger(__name__)
+
+
+def model_class(target: str) -> type[MotionModel]:
+    from hydra.utils import get_class
+
+    cls = get_class(target)
+    if not (isinstance(cls, type) and issubclass(cls, MotionModel)):
+        raise TypeError(f"{target} is not a MotionModel")
+    return cls
+
+
+def train_config(cfg: dict[str, Any]) -> TrainConfig:
+    """Trainer settings: the model's paper defaults (``model.train``) under ``train`` overrides."""
+    merged = {**cfg["model"].get("train", {}), **{k: v for k, v in cfg["train"].items() if v is not None}}
+    known = TrainConfig.__dataclass_fields__
+    unknown = sorted(set(merged) - set(known))
+    if unknown:
+        raise ValueError(f"unknown train options {unknown}; known: {sorted(known)}")
+    merged["seed"] = int(cfg.get("seed", 0))
+    return TrainConfig(**merged).validate()
+
+
+def build(cfg: dict[str, Any]):
+    """Data, model and trainer config from a resolved config dict (no training yet)."""
+    ds, m = cfg["dataset"], cfg["model"]
+    size = cfg.get("model_size", "default")
+    if size not in m.get("sizes", {}):
+        raise ValueError(f"model {m.get('name')!r} has no sizes.{size}; has {sorted(m.get('sizes', {}))}")
+    cls = model_class(m["_target_"])
+    tcfg = train_config(cfg)
+    family = getattr(cls, "family", None) or ds["training"]["family"]
+    paths = cfg["paths"]
+    train = open_split(paths["processed"], paths["splits"], ds["name"], ds["training"], family, "train")
+    val = open_split(paths["processed"], paths["splits"], ds["name"], ds["training"], family, "val")
+    seed_everything(tcfg.seed)
+    # a dataset may fix protocol-level hyperparameters (H3.6M Table 3: 10 input + 50 predicted poses)
+    hparams = {**m["sizes"][size], **(ds["training"].get("model_overrides") or {}).get(m["name"], {})}
+    model = cls(train.spec, **hparams)
+    return model, train, val, tcfg
+
+
+def git_commit(root: str | Path) -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
+                              check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def dataset_hash(root: str | Path, dataset: str) -> str:
+    """The DVC md5 of the dataset's prepared data and splits, from dvc.lock."""
+    lock = Path(root) / "dvc.lock"
+    if not lock.exists():
+        return "unknown"
+    stages = yaml.safe_load(lock.read_text()).get("stages", {})
+    parts = []
+    for stage in (f"prepare@{dataset}", f"split@{dataset}"):
+        for out in stages.get(stage, {}).get("outs", []):
+            if out["path"].startswith("data/"):
+                parts.append(out.get("md5", "?"))
+    return "+".join(parts) or "unknown"
+
+
+def run(cfg: dict[str, Any], progress: bool = True) -> dict[str, Any]:
+    """Train one (model, dataset) pair; returns the summary written to the metrics file."""
+    model, train, val, tcfg = build(cfg)
+    ds, m = cfg["dataset"]["name"], cfg["model"]["name"]
+    out = Path(cfg["paths"]["models"]) / ds / m
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    fp = fingerprint({k: cfg[k] for k in ("dataset", "model", "train", "seed", "model_size")})
+    trainer = Trainer(model, train, val, tcfg, out, fp, progress=progress)
+    trainer.try_resume()
+    tags = {"model": m, "dataset": ds, "stage": "train", "git_commit": git_commit(cfg["paths"]["root"]),
+            "dataset_hash": dataset_hash(cfg["paths"]["root"], ds), "profile": str(cfg.get("profile_name"))}
+    with tracking.resumable_run(cfg["paths"]["root"], f"{cfg['tracking']['experiment_prefix']}/{ds}",
+                                run_name=f"train:{m}", run_id=trainer.run_id, params=cfg, tags=tags,
+                                enabled=bool(cfg["tracking"].get("enabled", True))) as active:
+        trainer.run_id = active.info.run_id if active is not None else None
+
+        def on_epoch(epoch: int, metrics: dict) -> None:
+            tracking.log_metrics({k: v for k, v in metrics.items() if k != "epoch"}, step=epoch)
+
+        trainer.on_epoch = on_epoch
+        result = trainer.fit()
+        best = _best_row(result["history"], tcfg.monitor)
+        summary = {"model": m, "dataset": ds, "epochs_run": result["epochs_run"], "seconds": result["seconds"],
+                   "best_epoch": best.get("epoch"), "monitor": tcfg.monitor,
+                   **{k: v for k, v in best.items() if k != "epoch"},
+                   "parameters": sum(p.numel() for p in model.parameters()),
+                   "train_windows": len(train), "val_windows": len(val)}
+        if "val/zero_velocity_mse" in best:
+            summary["beats_zero_velocity"] = bool(best["val/pred_mse"] < best["val/zero_velocity_mse"])
+        (out / "summary.json").write_text(json.dumps(summary, indent=1))
+        png = sample_figure(model, val, out / "sample.png", seed=tcfg.seed)
+        tracking.log_metrics({f"best/{k.split('/', 1)[-1]}": v for k, v in best.items() if k != "epoch"})
+        for art in (out / "config.yaml", out / "best.pt", png):
+            tracking.log_artifact(art)
+    return summary
+
+
+def _best_row(history: list[dict], monitor: str) -> dict:
+    rows = [h for h in history if monitor in h]
+    return min(rows, key=lambda h: h[monitor]) if rows else (history[-1] if history else {})
+
+
+def sample_figure(model: MotionModel, val, path: Path, seed: int) -> Path:
+    """A generated validation window against the ground truth: a few pose coordinates over time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .checkpoint import load
+
+    best = load(path.parent / "best.pt")
+    model.load_state_dict(best["model"])
+    model.eval()
+    torch.manual_seed(seed)
+    batch = val.batch(np.array([0]))
+    device = next(iter(model.parameters()), torch.zeros(0)).device
+    batch = batch.to(device)
+    with torch.no_grad():
+        p = model.predict(batch)[0]
+    from .trainer import target_of
+
+    g = target_of(model, batch)[0]
+    pred = p.reshape(p.shape[0], -1).cpu().numpy()
+    gt = g.reshape(g.shape[0], -1).cpu().numpy()
+    S = int(getattr(model, "seed_frames", 0))
+    dims = np.argsort(-gt.std(0))[:4]  # the four most-moving coordinates
+    fig, axes = plt.subplots(len(dims), 1, figsize=(7, 1.6 * len(dims)), sharex=True)
+    for ax, d in zip(np.atleast_1d(axes), dims):
+        ax.plot(gt[:, d], "k-", lw=1.2, label="ground truth")
+        ax.plot(pred[:, d], "C3-", lw=1.2, label="generated")
+        if S:
+            ax.axvline(S - 0.5, color="gray", ls=":", lw=1)
+        ax.set_ylabel(f"dim {d}", fontsize=8)
+    np.atleast_1d(axes)[0].legend(fontsize=7, loc="upper right")
+    np.atleast_1d(axes)[0].set_title(f"{type(model).__name__}: validation window 0 (normalised units)", fontsize=9)
+    np.atleast_1d(axes)[-1].set_xlabel("frame")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path

@@ -1,0 +1,251 @@
+"""The one trainer every model uses.
+
+* Deterministic: seeds Python, numpy and torch, and the batch order is a
+  function of ``(seed, epoch)`` only (:meth:`WindowData.iterate`). A rerun on
+  the CPU gives bitwise-equal weights and metrics.
+* Crash-safe: ``last.pt`` (model, optimiser, epoch, history, RNG state, best
+  score, MLflow run id) is written atomically every ``checkpoint_every`` epochs.
+  Rerunning after a ``kill -9`` resumes from it and ends with the same weights
+  as an uninterrupted run. ``best.pt`` holds the best weights by ``monitor``.
+* Early stopping on the monitored validation metric, with ``patience`` epochs.
+* Common validation metrics for every model, so that runs compare:
+  ``val/loss`` (the model's own objective), ``val/pred_mse`` (MSE of
+  ``model.predict`` on the frames after its seed, in normalised units) and
+  ``val/zero_velocity_mse`` (the same frames predicted by repeating the last
+  seed frame).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from ..models.base import Batch, MotionModel
+from . import checkpoint as ckpt
+from .data import WindowData
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TrainConfig:
+    epochs: int = 20
+    batch_size: int = 32
+    optimizer: str = "adam"
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    grad_clip: float | None = 1.0
+    patience: int = 5
+    min_delta: float = 0.0
+    monitor: str = "val/pred_mse"
+    checkpoint_every: int = 1
+    max_batches_per_epoch: int | None = None
+    val_max_batches: int | None = None
+    seed: int = 0
+    threads: int = 2
+    device: str = "auto"
+
+    def validate(self) -> "TrainConfig":
+        """Reject garbage before any work starts."""
+        problems = []
+        if not isinstance(self.epochs, int) or self.epochs < 0:
+            problems.append(f"train.epochs must be a non-negative integer, got {self.epochs!r}")
+        if not isinstance(self.batch_size, int) or self.batch_size <= 0:
+            problems.append(f"train.batch_size must be a positive integer, got {self.batch_size!r}")
+        if not (isinstance(self.lr, (int, float)) and self.lr > 0 and math.isfinite(self.lr)):
+            problems.append(f"train.lr must be a positive number, got {self.lr!r}")
+        if self.optimizer not in ("adam", "adamw", "sgd"):
+            problems.append(f"train.optimizer must be adam, adamw or sgd, got {self.optimizer!r}")
+        if self.weight_decay < 0:
+            problems.append(f"train.weight_decay must be >= 0, got {self.weight_decay!r}")
+        if self.checkpoint_every < 1 or self.patience < 1:
+            problems.append("train.checkpoint_every and train.patience must be >= 1")
+        if self.device not in ("auto", "cpu", "cuda") and not str(self.device).startswith("cuda:"):
+            problems.append(f"train.device must be auto, cpu or cuda[:N], got {self.device!r}")
+        if self.threads < 1:
+            problems.append(f"train.threads must be >= 1, got {self.threads!r}")
+        if problems:
+            raise ValueError("invalid training config: " + "; ".join(problems))
+        return self
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def resolve_device(name: str, threads: int) -> torch.device:
+    torch.set_num_threads(threads)
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def make_optimizer(model: torch.nn.Module, cfg: TrainConfig) -> torch.optim.Optimizer | None:
+    params = [p for p in model.parameters() if p.requires_grad]
+    if not params:
+        return None
+    if cfg.optimizer == "adamw":
+        return torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    if cfg.optimizer == "sgd":
+        return torch.optim.SGD(params, lr=cfg.lr, weight_decay=cfg.weight_decay, momentum=0.9)
+    return torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+
+
+def target_of(model: MotionModel, batch: Batch) -> torch.Tensor:
+    """What ``model.predict(batch)`` is compared with (sparse poses for GloGen)."""
+    return model.target(batch) if hasattr(model, "target") else batch.pose
+
+
+class Trainer:
+    def __init__(self, model: MotionModel, train_data: WindowData, val_data: WindowData, cfg: TrainConfig,
+                 out_dir: str | Path, fingerprint: str, on_epoch: Callable[[int, dict], None] | None = None,
+                 progress: bool = True):
+        self.model, self.train_data, self.val_data = model, train_data, val_data
+        self.cfg, self.out = cfg.validate(), Path(out_dir)
+        self.fingerprint, self.on_epoch, self.progress = fingerprint, on_epoch, progress
+        self.device = resolve_device(cfg.device, cfg.threads)
+        self.model.to(self.device)
+        self.optim = make_optimizer(model, cfg)
+        self.start_epoch, self.best, self.bad_epochs = 0, math.inf, 0
+        self.history: list[dict[str, float]] = []
+        self.run_id: str | None = None
+        self.done = False  # finished (all epochs, or stopped early): a rerun trains no further
+
+    # ------------------------------------------------------------------ state
+    def state(self, epoch: int) -> dict[str, Any]:
+        return {"model": self.model.state_dict(), "optim": self.optim.state_dict() if self.optim else {},
+                "epoch": epoch, "best": self.best, "bad_epochs": self.bad_epochs, "history": self.history,
+                "rng": torch.get_rng_state(), "fingerprint": self.fingerprint, "run_id": self.run_id or "",
+                "done": bool(self.done)}
+
+    def try_resume(self) -> bool:
+        """Resume from ``last.pt`` when it exists and was written under the same config."""
+        last = self.out / "last.pt"
+        if not last.exists():
+            return False
+        st = ckpt.load(last, self.device)
+        if st.get("fingerprint") != self.fingerprint:
+            log.warning("%s was written under another config; starting afresh", last)
+            return False
+        self.model.load_state_dict(st["model"])
+        if self.optim and st["optim"]:
+            self.optim.load_state_dict(st["optim"])
+        self.start_epoch, self.best, self.bad_epochs = int(st["epoch"]) + 1, float(st["best"]), int(st["bad_epochs"])
+        self.history = list(st["history"])
+        torch.set_rng_state(st["rng"])
+        self.run_id = st.get("run_id") or None
+        self.done = bool(st.get("done", False))
+        log.info("resumed from %s at epoch %d", last, self.start_epoch)
+        return True
+
+    # ------------------------------------------------------------------ loops
+    def _set_epoch(self, epoch: int) -> None:
+        if hasattr(self.model, "set_epoch"):
+            self.model.set_epoch(epoch)
+
+    def train_epoch(self, epoch: int) -> dict[str, float]:
+        self.model.train()
+        self._set_epoch(epoch)
+        total, n, terms = 0.0, 0, {}
+        n_batches = math.ceil(len(self.train_data) / self.cfg.batch_size)
+        if self.cfg.max_batches_per_epoch:
+            n_batches = min(n_batches, self.cfg.max_batches_per_epoch)
+        it = self.train_data.iterate(self.cfg.batch_size, shuffle=True, seed=self.cfg.seed, epoch=epoch)
+        bar = tqdm(total=n_batches, desc=f"epoch {epoch}", disable=not self.progress, leave=False)
+        for i, batch in enumerate(it):
+            if i >= n_batches:
+                break
+            batch = batch.to(self.device)
+            loss, logs = self.model.loss(batch)
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"non-finite training loss at epoch {epoch}, batch {i}: {logs}")
+            if self.optim is not None:
+                self.optim.zero_grad(set_to_none=True)
+                loss.backward()
+                if self.cfg.grad_clip:
+                    torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
+                self.optim.step()
+            total += float(loss.detach()) * batch.size
+            n += batch.size
+            for k, v in logs.items():
+                terms[k] = terms.get(k, 0.0) + float(v) * batch.size
+            bar.update(1)
+            bar.set_postfix(loss=f"{float(loss.detach()):.4f}")
+        bar.close()
+        out = {"train/loss": total / max(n, 1)}
+        out.update({f"train/{k}": v / max(n, 1) for k, v in terms.items()})
+        return out
+
+    @torch.no_grad()
+    def evaluate(self, data: WindowData, prefix: str = "val") -> dict[str, float]:
+        """The model's loss, its prediction MSE after its seed frames, and zero-velocity's on the same frames."""
+        self.model.eval()
+        S = int(getattr(self.model, "seed_frames", 0))
+        sums = {"loss": 0.0, "pred_mse": 0.0, "zero_velocity_mse": 0.0}
+        n = 0
+        g = torch.get_rng_state()
+        torch.manual_seed(self.cfg.seed + 1)  # sampling models: the same draws at every evaluation
+        for i, batch in enumerate(data.iterate(self.cfg.batch_size, shuffle=False, seed=0)):
+            if self.cfg.val_max_batches and i >= self.cfg.val_max_batches:
+                break
+            batch = batch.to(self.device)
+            loss, _ = self.model.loss(batch)
+            pred, tgt = self.model.predict(batch), target_of(self.model, batch)
+            sums["loss"] += float(loss.detach()) * batch.size
+            sums["pred_mse"] += float(((pred[:, S:] - tgt[:, S:]) ** 2).mean()) * batch.size
+            if S > 0:
+                zv = tgt[:, S - 1:S].expand_as(tgt[:, S:])
+                sums["zero_velocity_mse"] += float(((zv - tgt[:, S:]) ** 2).mean()) * batch.size
+            n += batch.size
+        torch.set_rng_state(g)
+        out = {f"{prefix}/{k}": v / max(n, 1) for k, v in sums.items() if not (k == "zero_velocity_mse" and S == 0)}
+        return out
+
+    def fit(self) -> dict[str, Any]:
+        t0 = time.perf_counter()
+        if len(self.train_data) == 0 or len(self.val_data) == 0:
+            raise ValueError(f"empty data: {len(self.train_data)} train and {len(self.val_data)} val windows")
+        epochs = self.cfg.epochs if self.optim is not None and not self.done else 0
+        if epochs == 0 and not self.history:  # nothing to learn (zero-velocity): evaluate once
+            metrics = {"epoch": 0, **self.evaluate(self.val_data)}
+            self.history.append(metrics)
+            self.best = metrics.get(self.cfg.monitor, math.inf)
+            self.done = True
+            ckpt.save_atomic(self.state(0), self.out / "best.pt")
+            ckpt.save_atomic(self.state(0), self.out / "last.pt")
+            if self.on_epoch:
+                self.on_epoch(0, metrics)
+        for epoch in range(self.start_epoch, epochs):
+            metrics = {"epoch": epoch, **self.train_epoch(epoch), **self.evaluate(self.val_data)}
+            self.history.append(metrics)
+            score = metrics.get(self.cfg.monitor, math.inf)
+            improved = score < self.best - self.cfg.min_delta
+            if improved:
+                self.best, self.bad_epochs = score, 0
+                ckpt.save_atomic(self.state(epoch), self.out / "best.pt")
+            else:
+                self.bad_epochs += 1
+            stop = self.bad_epochs >= self.cfg.patience
+            self.done = stop or epoch == epochs - 1
+            if (epoch + 1) % self.cfg.checkpoint_every == 0 or self.done:
+                ckpt.save_atomic(self.state(epoch), self.out / "last.pt")
+            if self.on_epoch:
+                self.on_epoch(epoch, metrics)
+            log.info("epoch %d: %s", epoch, ", ".join(f"{k}={v:.5f}" for k, v in metrics.items() if k != "epoch"))
+            if stop:
+                log.info("early stop at epoch %d (%s has not improved for %d epochs)", epoch,
+                         self.cfg.monitor, self.cfg.patience)
+                break
+        return {"history": self.history, "best": self.best, "epochs_run": len(self.history),
+                "seconds": time.perf_counter() - t0, "config": asdict(self.cfg)}
