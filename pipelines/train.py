@@ -12,6 +12,8 @@ from motionsynth.training.run import run
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
+    if cfg.get("model") is None:
+        raise SystemExit("choose a model: python pipelines/train.py model=<name> (one of conf/model/*.yaml)")
     summary = run(OmegaConf.to_container(cfg, resolve=True), progress=progress(cfg))
     write_json(f"{cfg.paths.reports}/metrics/train/{cfg.dataset.name}/{cfg.model.name}.json", summary)
     log.info("train %s on %s: %d epochs, best %s = %.5f", cfg.model.name, cfg.dataset.name,
