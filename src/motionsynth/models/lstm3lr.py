@@ -1,0 +1,30 @@
+"""LSTM-3LR (Fragkiadaki, Levine, Felsen, Malik, ICCV 2015, Sec. 4.1 baseline).
+
+Three stacked LSTM layers (1000 units each in the paper) with a linear output layer,
+predicting the next frame under teacher forcing with a Euclidean loss:
+
+    h^1_t = LSTM_1(x_t, h^1_{t-1}); h^l_t = LSTM_l(h^{l-1}_t, h^l_{t-1}); x^_{t+1} = W h^3_t + b
+
+With ``scheduled_sampling: true`` it is the *Scheduled Sampling* row of GlocalNet's
+Table 4 (Bengio et al. 2015; ``conf/model/scheduled_sampling.yaml``): the inverse-sigmoid
+schedule ``eps_i = k / (k + exp(i / k))`` of Bengio Sec. 2.4, see :mod:`.recurrent`.
+
+Choices where the paper is vague: the input-noise curriculum (``input_noise``,
+``noise_every``) as for ERD; mean instead of summed squared error; features, control
+modes and seed protocol of :class:`~.recurrent.RecurrentBaseline`.
+
+Shapes: ``pose`` ``[B, T, J, D]`` -> inputs ``[B, T-1, Fy+Fc]`` -> LSTM x3 ``[B, T-1, 1000]``
+-> linear ``[B, T-1, Fy]`` (frames ``1..T-1``).
+"""
+
+from __future__ import annotations
+
+from .base import DataSpec
+from .recurrent import RecurrentBaseline
+
+
+class LSTM3LR(RecurrentBaseline):
+    cell = "lstm"
+
+    def __init__(self, spec: DataSpec, hidden_size: int = 1000, num_layers: int = 3, **common):
+        super().__init__(spec, hidden_size, num_layers, **common)
