@@ -28,6 +28,8 @@ test: install
 bench: install
 	$(BIN)/python bench/ingest.py
 	$(BIN)/python bench/pipeline.py
+	$(BIN)/python bench/train.py
+	$(BIN)/python bench/generate.py
 
 clean-outputs:
 	rm -rf data/interim data/processed data/splits reports/data reports/figures/data reports/data.md reports/metrics/data.json

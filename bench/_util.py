@@ -13,7 +13,8 @@ sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(ROOT / "tests"))
 
 
-def median_time(fn, repeats: int = 7, warmup: int = 2) -> float:
+def timed(fn, repeats: int = 7, warmup: int = 2) -> tuple[float, list[float]]:
+    """Run ``fn`` ``warmup`` times, then ``repeats`` timed times: (median seconds, all runs)."""
     for _ in range(warmup):
         fn()
     times = []
@@ -21,7 +22,11 @@ def median_time(fn, repeats: int = 7, warmup: int = 2) -> float:
         t0 = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    return statistics.median(times), times
+
+
+def median_time(fn, repeats: int = 7, warmup: int = 2) -> float:
+    return timed(fn, repeats, warmup)[0]
 
 
 def emit(bench: str, value: float, unit: str, target: float | None = None, **extra) -> None:

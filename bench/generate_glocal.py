@@ -19,11 +19,11 @@ from motionsynth.models.glogen import GloGen
 from motionsynth.models.locgen import LocGen, glocal_generate
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--size", default="default")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     fps, seconds, k = 30.0, 10.0, 5

@@ -20,12 +20,9 @@ for N characters, T frames, T' = T/4, kernel K, q = (K//2 + 1)//2, widths from c
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
-
 import torch
 from _flops import matmul_gflops
-from _util import ROOT, emit
+from _util import ROOT, emit, timed
 from omegaconf import OmegaConf
 from torch.utils.flop_counter import FlopCounterMode
 
@@ -60,24 +57,13 @@ def generation_flops(m: VAELSTM, n: int, frames: int) -> dict[str, int]:
     return f
 
 
-def timed(fn, repeats: int, warmup: int) -> tuple[float, list[float]]:
-    for _ in range(warmup):
-        fn()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return statistics.median(ts), ts
-
-
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--characters", type=int, default=1000)
     ap.add_argument("--frames", type=int, default=240)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--repeats", type=int, default=5)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     paper = OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "model" / "vae_lstm.yaml"))["sizes"]["paper"]
     spec = DataSpec(joints=21, dims=3, num_classes=4, controls=3, fps=60.0, window=args.frames)

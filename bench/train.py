@@ -16,8 +16,8 @@ from _util import ROOT, emit, median_time
 from omegaconf import OmegaConf
 
 from motionsynth.training.data import real_batch
-from motionsynth.training.run import model_class
-from motionsynth.training.trainer import make_optimizer, train_config
+from motionsynth.training.run import model_class, train_config
+from motionsynth.training.trainer import make_optimizer
 
 DATASET_FOR = {"vae_lstm": "bandai2_locomotion", "glocal": "h36m"}
 

@@ -35,8 +35,13 @@ def model_class(target: str) -> type[MotionModel]:
 
 
 def train_config(cfg: dict[str, Any]) -> TrainConfig:
-    """Trainer settings: the model's paper defaults (``model.train``) under ``train`` overrides."""
-    merged = {**cfg["model"].get("train", {}), **{k: v for k, v in cfg["train"].items() if v is not None}}
+    """Trainer settings, later entries winning: the model's paper defaults (``model.train``),
+    the model's budget for the active profile (``model.schedule.<profile_name>``: how many
+    epochs and batches this model needs to learn under that profile), then every non-null
+    ``train`` value (the profile's and the command line's overrides)."""
+    schedule = (cfg["model"].get("schedule") or {}).get(cfg.get("profile_name"), {}) or {}
+    merged = {**cfg["model"].get("train", {}), **schedule,
+              **{k: v for k, v in cfg["train"].items() if v is not None}}
     known = TrainConfig.__dataclass_fields__
     unknown = sorted(set(merged) - set(known))
     if unknown:
@@ -59,9 +64,20 @@ def build(cfg: dict[str, Any]):
     val = open_split(paths["processed"], paths["splits"], ds["name"], ds["training"], family, "val")
     seed_everything(tcfg.seed)
     # a dataset may fix protocol-level hyperparameters (H3.6M Table 3: 10 input + 50 predicted poses)
-    hparams = {**m["sizes"][size], **(ds["training"].get("model_overrides") or {}).get(m["name"], {})}
+    # and a protocol variant (conf/variant/) its own arguments, e.g. VAE-LSTM Table 2's given controls
+    hparams = {**m["sizes"][size], **(ds["training"].get("model_overrides") or {}).get(m["name"], {}),
+               **(cfg.get("model_args") or {})}
     model = cls(train.spec, **hparams)
     return model, train, val, tcfg
+
+
+def run_name(cfg: dict[str, Any]) -> str:
+    """``run_name``, else ``<model>`` or ``<model>-<variant_name>``: names the run's folder under
+    ``models/<dataset>/``, its metrics file and its MLflow run."""
+    if cfg.get("run_name"):
+        return str(cfg["run_name"])
+    variant = cfg.get("variant_name")
+    return cfg["model"]["name"] + (f"-{variant}" if variant else "")
 
 
 def git_commit(root: str | Path) -> str:
@@ -89,17 +105,17 @@ def dataset_hash(root: str | Path, dataset: str) -> str:
 def run(cfg: dict[str, Any], progress: bool = True) -> dict[str, Any]:
     """Train one (model, dataset) pair; returns the summary written to the metrics file."""
     model, train, val, tcfg = build(cfg)
-    ds, m = cfg["dataset"]["name"], cfg["model"]["name"]
-    out = Path(cfg["paths"]["models"]) / ds / m
+    ds, m, name = cfg["dataset"]["name"], cfg["model"]["name"], run_name(cfg)
+    out = Path(cfg["paths"]["models"]) / ds / name
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
-    fp = fingerprint({k: cfg[k] for k in ("dataset", "model", "train", "seed", "model_size")})
+    fp = fingerprint({k: cfg.get(k) for k in ("dataset", "model", "train", "seed", "model_size", "model_args")})
     trainer = Trainer(model, train, val, tcfg, out, fp, progress=progress)
     trainer.try_resume()
-    tags = {"model": m, "dataset": ds, "stage": "train", "git_commit": git_commit(cfg["paths"]["root"]),
+    tags = {"model": m, "dataset": ds, "stage": "train", "run": name, "variant": str(cfg.get("variant_name")), "git_commit": git_commit(cfg["paths"]["root"]),
             "dataset_hash": dataset_hash(cfg["paths"]["root"], ds), "profile": str(cfg.get("profile_name"))}
     with tracking.resumable_run(cfg["paths"]["root"], f"{cfg['tracking']['experiment_prefix']}/{ds}",
-                                run_name=f"train:{m}", run_id=trainer.run_id, params=cfg, tags=tags,
+                                run_name=f"train:{name}", run_id=trainer.run_id, params=cfg, tags=tags,
                                 enabled=bool(cfg["tracking"].get("enabled", True))) as active:
         trainer.run_id = active.info.run_id if active is not None else None
 
@@ -109,7 +125,7 @@ def run(cfg: dict[str, Any], progress: bool = True) -> dict[str, Any]:
         trainer.on_epoch = on_epoch
         result = trainer.fit()
         best = _best_row(result["history"], tcfg.monitor)
-        summary = {"model": m, "dataset": ds, "epochs_run": result["epochs_run"], "seconds": result["seconds"],
+        summary = {"model": m, "run": name, "variant": cfg.get("variant_name"), "dataset": ds, "epochs_run": result["epochs_run"], "seconds": result["seconds"],
                    "best_epoch": best.get("epoch"), "monitor": tcfg.monitor,
                    **{k: v for k, v in best.items() if k != "epoch"},
                    "parameters": sum(p.numel() for p in model.parameters()),

@@ -43,13 +43,15 @@ class TrainConfig:
     optimizer: str = "adam"
     lr: float = 1e-3
     weight_decay: float = 0.0
+    momentum: float = 0.9         # SGD only
     grad_clip: float | None = 1.0
     patience: int = 5
     min_delta: float = 0.0
     monitor: str = "val/pred_mse"
     checkpoint_every: int = 1
     max_batches_per_epoch: int | None = None
-    val_max_batches: int | None = None
+    val_windows: int | None = None    # validate on N evenly spaced windows (None: all): the same ones for every model
+    eval_batch_size: int = 64
     seed: int = 0
     threads: int = 2
     device: str = "auto"
@@ -65,8 +67,16 @@ class TrainConfig:
             problems.append(f"train.lr must be a positive number, got {self.lr!r}")
         if self.optimizer not in ("adam", "adamw", "sgd"):
             problems.append(f"train.optimizer must be adam, adamw or sgd, got {self.optimizer!r}")
+        if not (isinstance(self.momentum, (int, float)) and 0 <= self.momentum < 1):
+            problems.append(f"train.momentum must lie in [0, 1), got {self.momentum!r}")
         if self.weight_decay < 0:
             problems.append(f"train.weight_decay must be >= 0, got {self.weight_decay!r}")
+        for name in ("val_windows",):
+            v = getattr(self, name)
+            if v is not None and (not isinstance(v, int) or v < 1):
+                problems.append(f"train.{name} must be a positive integer or null, got {v!r}")
+        if not isinstance(self.eval_batch_size, int) or self.eval_batch_size < 1:
+            problems.append(f"train.eval_batch_size must be a positive integer, got {self.eval_batch_size!r}")
         if self.checkpoint_every < 1 or self.patience < 1:
             problems.append("train.checkpoint_every and train.patience must be >= 1")
         if self.device not in ("auto", "cpu", "cuda") and not str(self.device).startswith("cuda:"):
@@ -98,7 +108,7 @@ def make_optimizer(model: torch.nn.Module, cfg: TrainConfig) -> torch.optim.Opti
     if cfg.optimizer == "adamw":
         return torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
     if cfg.optimizer == "sgd":
-        return torch.optim.SGD(params, lr=cfg.lr, weight_decay=cfg.weight_decay, momentum=0.9)
+        return torch.optim.SGD(params, lr=cfg.lr, weight_decay=cfg.weight_decay, momentum=cfg.momentum)
     return torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
 
 
@@ -196,9 +206,14 @@ class Trainer:
         n = 0
         g = torch.get_rng_state()
         torch.manual_seed(self.cfg.seed + 1)  # sampling models: the same draws at every evaluation
-        for i, batch in enumerate(data.iterate(self.cfg.batch_size, shuffle=False, seed=0)):
-            if self.cfg.val_max_batches and i >= self.cfg.val_max_batches:
-                break
+        if self.cfg.val_windows and self.cfg.val_windows < len(data):
+            # evenly spaced windows: the same ones for every model of a dataset, spread over its sequences
+            idx = np.linspace(0, len(data) - 1, self.cfg.val_windows).round().astype(np.int64)
+            batches = (data.batch(idx[i:i + self.cfg.eval_batch_size])
+                       for i in range(0, len(idx), self.cfg.eval_batch_size))
+        else:
+            batches = data.iterate(self.cfg.eval_batch_size, shuffle=False, seed=0)
+        for batch in batches:
             batch = batch.to(self.device)
             loss, _ = self.model.loss(batch)
             pred, tgt = self.model.predict(batch), target_of(self.model, batch)
