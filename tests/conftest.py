@@ -73,3 +73,38 @@ def overfit(model, batch, steps: int = 200, lr: float = 3e-3) -> tuple[float, fl
         loss.backward()
         opt.step()
     return first, last
+
+
+def compose_cfg(root: Path, dataset: str, *overrides: str) -> dict:
+    """The pipeline's resolved Hydra config for ``dataset`` under project root ``root`` (smoke profile,
+    MLflow off unless overridden)."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=[f"paths.root={root}", f"dataset={dataset}", "profile=smoke",
+                                           "tracking.enabled=false", *overrides])
+    return OmegaConf.to_container(cfg, resolve=True)
+
+
+def build_eval_root(root: Path, dataset: str, runs: dict[str, tuple[str, str]], max_items: int = 16,
+                    epochs: int = 1, batches: int = 2) -> dict[str, str]:
+    """A project root for evaluation tests: ``max_items`` real items of ``dataset`` ingested, prepared
+    and split into ``root/data``, and each run ``name -> (model, variant)`` trained for ``epochs`` x
+    ``batches`` at the smoke sizes into ``root/models/<dataset>/<name>``. Returns ``{name: model}``
+    (what ``params.yaml: train_runs`` gives the evaluate stage)."""
+    from motionsynth.data.ingest import ingest
+    from motionsynth.data.prepare import prepare
+    from motionsynth.data.splits import split_dataset
+    from motionsynth.training.run import run
+
+    cfg = dataset_cfg(dataset)
+    if not (root / "data/splits" / dataset).exists():
+        ingest(cfg, archive_path(dataset), root / "data/interim" / dataset, max_items=max_items, progress=False)
+        prepare(root / "data/interim" / dataset, root / "data/processed" / dataset, cfg["prepare"]["representations"])
+        split_dataset(root / "data/processed" / dataset, root / "data/splits" / dataset, cfg["split"], seed=0)
+    for name, (model, variant) in runs.items():
+        if not (root / "models" / dataset / name / "best.pt").exists():
+            run(compose_cfg(root, dataset, f"model={model}", f"variant={variant}", f"run_name={name}",
+                            f"train.epochs={epochs}", f"train.max_batches_per_epoch={batches}"), progress=False)
+    return {name: model for name, (model, _) in runs.items()}

@@ -24,7 +24,10 @@ from conftest import REPO, STORE
 DATASETS = ["bandai1", "bandai2_locomotion", "cmu_aclstm", "h36m", "ntu_samples"]
 # the data stages (pulled in by data_report) and one training stage per model family
 TRAIN = [("bandai2_locomotion", "vae_lstm"), ("h36m", "glogen"), ("cmu_aclstm", "seq2seq")]
-TARGETS = ["data_report", *(f"train@{ds}-{m}" for ds, m in TRAIN)]
+# and one dataset's evaluation (it trains that dataset's other runs) and animations; the report runs on its own
+# (`dvc repro -s report`: the datasets not evaluated here are reported as such)
+EVAL = "h36m"
+TARGETS = ["data_report", *(f"train@{ds}-{m}" for ds, m in TRAIN), f"evaluate@{EVAL}", f"animate@{EVAL}"]
 
 
 def sh(args, cwd, env):
@@ -60,6 +63,7 @@ def smoke_clone(tmp_path_factory):
     params["profile"] = "smoke"
     (dst / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     out = sh(dvc + ["repro", *TARGETS], dst, env)
+    out += sh(dvc + ["repro", "-s", "report"], dst, env)
     return dst, env, out
 
 
@@ -119,7 +123,9 @@ def test_smoke_train_stages_write_models_metrics_and_mlflow_runs(smoke_clone):
         # 2 epochs x 4 batches only prove the plumbing: a residual model (seq2seq) may still drift
         assert math.isfinite(metrics["val/pred_mse"]) and metrics["val/pred_mse"] > 0
         assert "val/zero_velocity_mse" in metrics
-        (run_id, status), = con.execute("select run_uuid, status from runs where name = ?", (f"train:{m}",))
+        (run_id, status), = con.execute(
+            "select r.run_uuid, r.status from runs r join tags t on t.run_uuid = r.run_uuid "
+            "where r.name = ? and t.key = 'dataset' and t.value = ?", (f"train:{m}", ds))
         assert status == "FINISHED"
         tags = dict(con.execute("select key, value from tags where run_uuid = ?", (run_id,)).fetchall())
         assert tags["model"] == m and tags["dataset"] == ds and len(tags["git_commit"]) == 40
@@ -132,3 +138,28 @@ def test_smoke_train_stages_write_models_metrics_and_mlflow_runs(smoke_clone):
         uri = con.execute("select artifact_uri from runs where run_uuid = ?", (run_id,)).fetchone()[0]
         art = Path(uri.removeprefix("file://"))
         assert {"config.yaml", "best.pt", "sample.png"} <= {p.name for p in art.iterdir()}
+
+
+def test_smoke_evaluate_animate_report(smoke_clone):
+    """evaluate@h36m -> results, DVC metrics equal to the MLflow runs, animations, and the report."""
+    import pandas as pd
+
+    dst, _, out = smoke_clone
+    assert f"Running stage 'evaluate@{EVAL}'" in out and "Running stage 'report'" in out
+    runs = {r["name"] for r in yaml.safe_load((dst / "params.yaml").read_text())["train_runs"].values()
+            if r["dataset"] == EVAL}
+    rows = pd.read_csv(dst / "reports" / "eval" / EVAL / "results.csv")
+    assert set(rows["run"].dropna()) == runs                  # every trained run of the dataset is evaluated
+    assert {"Table 3", "Generative metrics"} <= set(rows["table"])
+    metrics = json.loads((dst / "reports" / "metrics" / f"{EVAL}.json").read_text())
+    con = sqlite3.connect(dst / "mlflow.db")
+    for method, values in metrics.items():
+        (run_id, status), = con.execute("select run_uuid, status from runs where name = ?", (f"evaluate:{method}",))
+        logged = dict(con.execute("select key, value from latest_metrics where run_uuid = ?", (run_id,)).fetchall())
+        assert status == "FINISHED" and logged == {f"test/{k}": v for k, v in values.items()}
+    anim = dst / "reports" / "animations" / EVAL
+    assert (anim / "seq0.gif").read_bytes()[:6] == b"GIF89a" and (anim / "seq0.mp4").read_bytes()[4:8] == b"ftyp"
+    report = (dst / "reports" / "README.md").read_text()
+    assert "GlocalNet, Table 3" in report and "not evaluated" in report      # the other datasets: not run here
+    assert f"animations/{EVAL}/seq0.gif" in report
+    assert (dst / "reports" / "tables" / "glocalnet_table3.md").exists()

@@ -136,3 +136,18 @@ def test_unknown_joint_in_representation_is_rejected(tmp_path):
     ingest(cfg, archive_path("ntu_samples"), tmp_path / "i", max_items=1, progress=False)
     with pytest.raises(KeyError, match="Elbw"):
         prepare(tmp_path / "i", tmp_path / "p", {"x": {"space": "3d", "fps": 30, "joints": ["Elbw"]}})
+
+
+def test_gather_fills_padded_frames_with_pad_value():
+    import numpy as np
+    import pandas as pd
+
+    from motionsynth.data.clips import gather
+
+    data = np.arange(10, dtype=np.float32)[:, None] + 1            # two sequences of 4 and 6 frames
+    win = pd.DataFrame({"seq": [0, 1], "start": [0, -2], "length": [6, 6]})
+    offsets, frames = np.array([0, 4]), np.array([4, 6])
+    edge = gather(data, offsets, frames, win)[..., 0]
+    assert edge.tolist() == [[1, 2, 3, 4, 4, 4], [5, 5, 5, 6, 7, 8]]       # clamped: the edge pose repeats
+    zero = gather(data, offsets, frames, win, pad_value=0.0)[..., 0]
+    assert zero.tolist() == [[1, 2, 3, 4, 0, 0], [0, 0, 5, 6, 7, 8]]       # controls of padding: standing still

@@ -67,9 +67,11 @@ Choices where the brief is open (and why)
   source files' units (centimetres, :func:`~motionsynth.viz.bvh_export.dataset_scale`); bone
   lengths are the skeleton's, directions the generated ones (no bone-length check by default:
   generated bones stretch a little).
-* **GIF** with matplotlib (blitting) + Pillow (no imageio needed), ``gif.fps`` frames per second
-  (every n-th frame): ~1.5 s for 10 s at 15 fps; **MP4** through ffmpeg (raw frames piped in) only
-  when ffmpeg is on PATH (else an error before any work).
+* **GIF** with matplotlib (blitting) + Pillow, ``gif.fps`` frames per second (every n-th frame):
+  ~1.5 s for 10 s at 15 fps; **MP4** (H.264) through the ffmpeg binary bundled with
+  ``imageio-ffmpeg`` (raw frames piped in; ``$IMAGEIO_FFMPEG_EXE`` overrides it; without either, an
+  error before any work). Both are drawn by :mod:`motionsynth.viz.animation`, which the
+  ``animate`` stage's side-by-side comparisons share.
 
 Errors: every problem an animator can cause (unknown option, class, preset, malformed schedule
 or CSV, bad length or pace, missing model or data) raises :class:`GenerateError` from
@@ -85,7 +87,6 @@ import json
 import math
 import os
 import re
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -631,8 +632,9 @@ def plan(cfg: dict) -> Plan:
         raise GenerateError(f"unknown output format(s) {bad}; choose from {', '.join(FORMATS)}")
     if "mp4" in formats:
         if ffmpeg_path() is None:
-            raise GenerateError("mp4 output needs ffmpeg on PATH, which is not installed here; "
-                                "drop mp4 from formats (GIF works without it) or install ffmpeg")
+            raise GenerateError("mp4 output needs ffmpeg, which is not available here (the Python package "
+                                "imageio-ffmpeg bundles it: pip install imageio-ffmpeg; or set IMAGEIO_FFMPEG_EXE "
+                                "to an ffmpeg binary); drop mp4 from formats (GIF works without it)")
     formats = list(dict.fromkeys(formats))
     seed = cfg.get("seed")
     _int(seed, "seed", 0)
@@ -840,12 +842,9 @@ class Result:
 
 
 def _load(info: RunInfo, cfg: dict):
-    from .training.checkpoint import load
-    from .training.run import build
+    from .training.run import load_trained
 
-    model, train, _val, _ = build(_run_cfg_with_paths(info, cfg))
-    model.load_state_dict(load(info.ckpt)["model"])
-    return model.eval(), train
+    return load_trained(info.dir, _run_cfg_with_paths(info, cfg)["paths"])
 
 
 def run(p: Plan) -> Result:
@@ -884,7 +883,7 @@ def generate(overrides: Seq[str] | Mapping = ()) -> Result:
 def _generate_vae(p: Plan, model, train) -> tuple[np.ndarray, dict]:
     import torch
 
-    from .data.controls import integrate_controls, rotate_y
+    from .data.controls import integrate_controls, to_global
 
     T, ctrl = p.frames, p.controls
     f = int(getattr(model, "factor", 1))
@@ -896,8 +895,7 @@ def _generate_vae(p: Plan, model, train) -> tuple[np.ndarray, dict]:
         out = model.generate(None, torch.from_numpy(z)[None], length=Tp, num_samples=p.num_samples)[:, :T]
     local = train.norm.inverse(out.numpy().astype(np.float64))                   # [N, T, J, 3] root-relative
     root = integrate_controls(ctrl, p.fps, start=np.array([0.0, 0.0, p.start_heading]))   # [T, 3] x, z, heading
-    ground = np.stack([root[:, 0], np.zeros(T), root[:, 1]], -1)
-    glob = np.stack([rotate_y(l, root[:, 2]) + ground[:, None] for l in local])  # [N, T, J, 3]
+    glob = to_global(local, root)                                                 # [N, T, J, 3]
     info = {"controls": ctrl.astype(np.float32), "root": root.astype(np.float32),
             "path": p.path_name, "seed": int(p.cfg["seed"]), "start_heading_deg": math.degrees(p.start_heading)}
     return glob.astype(np.float32), info
@@ -1034,136 +1032,30 @@ def write_outputs(p: Plan, positions: np.ndarray, info: dict, timings: dict) -> 
 
 
 def ffmpeg_path() -> str | None:
-    """The ffmpeg binary matplotlib would use (``animation.ffmpeg_path``), if it is installed."""
-    import matplotlib
+    """The ffmpeg binary MP4 output is encoded with (imageio-ffmpeg's bundled one, or
+    ``$IMAGEIO_FFMPEG_EXE``: :func:`motionsynth.viz.animation.ffmpeg_exe`), None when there is none."""
+    from .viz.animation import AnimationError, ffmpeg_exe
 
-    return shutil.which(str(matplotlib.rcParams["animation.ffmpeg_path"]))
+    try:
+        return ffmpeg_exe()
+    except AnimationError:
+        return None
 
 
 def render_animation(path: Path, pos: np.ndarray, skel, fps: float, p: Plan, info: dict, opts: Mapping,
                      title: str = "") -> Path:
-    """A GIF (Pillow) or MP4 (ffmpeg): the character seen from the front-right, followed by the
-    camera, and beside it the root path from above (vae_lstm) or the activity timeline (glocal).
+    """A GIF (Pillow) or MP4 (H.264 through imageio-ffmpeg's ffmpeg) of one generated character:
+    :func:`motionsynth.viz.animation.render_character` with this plan's view options (``gif:``
+    in the config: size, palette, camera) and the format's ``fps`` / ``dpi`` (``opts``).
 
     Speed: the static figure is drawn once; each frame restores it and redraws only the moving
     artists (blitting, ~5 ms a frame), and GIF frames share one palette (no per-frame colour
     quantisation), so a 10 s GIF at 15 fps takes about a second."""
-    import subprocess
+    from .viz.animation import render_character
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection
-
-    g = p.cfg["gif"]
-    gif = path.suffix == ".gif"
-    out_fps = float(opts["fps"])
-    step = max(1, round(fps / out_fps))
-    frames = np.arange(0, len(pos), step)
-    az = math.radians(float(g.get("view_azimuth_deg", 30.0)))
-    right = np.array([math.cos(az), 0.0, -math.sin(az)])       # screen x of a camera at azimuth az from +Z
-    u = pos @ right                                            # [T, J]
-    v = pos[..., 1]
     root_j = skel.index(skel.root) if skel.root else 0
-    bones = np.array([(j, int(q)) for j, q in enumerate(skel.parents) if q >= 0])
-    half = float(g["follow_m"])
-    ground = float(min(0.0, v.min()))
-    height = max(float(np.percentile(v.max(1), 95)) + 0.2, ground + 2 * half * 0.5)
-
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=tuple(g["size_in"]), dpi=int(opts.get("dpi", 80)),
-                                  gridspec_kw={"width_ratios": [1.2, 1]})
-    lc = LineCollection([], colors="C0", linewidths=2.5, animated=True)
-    ax.add_collection(lc)
-    ax.axhline(ground, color="0.6", lw=1)
-    ax.set_xlim(-half, half)
-    ax.set_ylim(ground - 0.05, height)
-    ax.set_aspect("equal", adjustable="box")
-    ax.set_xticks([])
-    ax.set_ylabel("height (m)")
-    label = ax.text(0.02, 0.98, "", transform=ax.transAxes, va="top", fontsize=8, animated=True)
-    moving = [(ax, lc), (ax, label)]
-    if p.family == "vae_lstm":
-        root = info["root"]
-        ax2.plot(root[:, 0], root[:, 1], color="0.75", lw=1)
-        trail, = ax2.plot([], [], color="C3", lw=1.5, animated=True)
-        dot, = ax2.plot([], [], "o", color="C3", animated=True)
-        arrow, = ax2.plot([], [], "-", color="k", lw=1.5, animated=True)
-        moving += [(ax2, trail), (ax2, dot), (ax2, arrow)]
-        span = max(float(np.ptp(root[:, 0])), float(np.ptp(root[:, 1])), 1.0)
-        cx, cz = (root[:, 0].max() + root[:, 0].min()) / 2, (root[:, 1].max() + root[:, 1].min()) / 2
-        ax2.set_xlim(cx + 0.6 * span, cx - 0.6 * span)          # +X (the character's left at the start) on the left
-        ax2.set_ylim(cz - 0.6 * span, cz + 0.6 * span)
-        ax2.set_aspect("equal")
-        ax2.set_xlabel("X (m)", fontsize=8)
-        ax2.set_ylabel("Z (m)", fontsize=8)
-        ax2.set_title("path from above", fontsize=9)
-    else:
-        labels = info["labels"]
-        names = dict(zip(info["class_labels"].tolist(), info["class_names"].tolist()))
-        T = len(labels)
-        edges = np.flatnonzero(np.diff(labels)) + 1
-        for n, (a, b) in enumerate(zip(np.r_[0, edges], np.r_[edges, T])):
-            ax2.barh(0, (b - a) / fps, left=a / fps, color=f"C{n % 10}", alpha=0.6)
-            ax2.text((a + b) / 2 / fps, 0, names.get(int(labels[a]), "?"), ha="center", va="center", fontsize=8,
-                     rotation=90 if (b - a) < 0.15 * T else 0)
-        cursor = ax2.axvline(0, color="k", lw=2, animated=True)
-        moving.append((ax2, cursor))
-        ax2.set_xlim(0, T / fps)
-        ax2.set_yticks([])
-        ax2.set_xlabel("time (s)", fontsize=8)
-        ax2.set_title(f"activities (pace {p.pace:g}, in place)", fontsize=9)
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    canvas = fig.canvas
-    canvas.draw()
-    background = canvas.copy_from_bbox(fig.bbox)
-
-    def draw(f: int) -> np.ndarray:
-        cu = u[f, root_j]
-        seg = np.stack([np.stack([u[f, bones[:, 0]] - cu, v[f, bones[:, 0]]], -1),
-                        np.stack([u[f, bones[:, 1]] - cu, v[f, bones[:, 1]]], -1)], 1)
-        lc.set_segments(seg)
-        if p.family == "vae_lstm":
-            c = info["controls"][f]
-            label.set_text(f"{f / fps:5.2f} s   {c[0]:.2f} m/s" + (f", side {c[1]:+.2f}" if abs(c[1]) > 0.005 else "")
-                           + f", turn {c[2]:+.2f} rad/s")
-            trail.set_data(root[:f + 1, 0], root[:f + 1, 1])
-            dot.set_data([root[f, 0]], [root[f, 1]])
-            h = root[f, 2]
-            arrow.set_data([root[f, 0], root[f, 0] + 0.1 * span * math.sin(h)],
-                           [root[f, 1], root[f, 1] + 0.1 * span * math.cos(h)])
-        else:
-            label.set_text(f"{f / fps:5.2f} s  {names.get(int(labels[f]), '?')}")
-            cursor.set_xdata([f / fps, f / fps])
-        canvas.restore_region(background)
-        for a, artist in moving:
-            a.draw_artist(artist)
-        return np.asarray(canvas.buffer_rgba())[..., :3]
-
-    try:
-        if gif:
-            from PIL import Image
-
-            images = [Image.fromarray(draw(int(f)).copy()) for f in frames]
-            palette = images[len(images) // 2].quantize(colors=int(g.get("colors", 64)))
-            q = [im.quantize(palette=palette, dither=Image.Dither.NONE) for im in images]
-            q[0].save(path, save_all=True, append_images=q[1:], duration=round(1000 * step / fps), loop=0)
-        else:
-            h, w = np.asarray(canvas.buffer_rgba()).shape[:2]
-            cmd = [ffmpeg_path() or "ffmpeg", "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
-                   "-s", f"{w}x{h}", "-r", f"{fps / step:g}", "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2",
-                   "-pix_fmt", "yuv420p", "-vcodec", "libx264", str(path)]
-            with subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE) as proc:
-                for f in frames:
-                    proc.stdin.write(np.ascontiguousarray(draw(int(f))).tobytes())
-                proc.stdin.close()
-                err = proc.stderr.read().decode(errors="replace")
-            if proc.returncode:
-                raise RuntimeError(f"ffmpeg failed writing {path}: {err.strip()[-500:]}")
-    finally:
-        plt.close(fig)
-    return path
+    return render_character(path, pos, skel.parents, root_j, fps, p.family, info, p.cfg["gif"], opts, title=title,
+                            pace=p.pace)
 
 
 def summary_lines(res: Result) -> list[str]:

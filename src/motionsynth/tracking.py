@@ -12,6 +12,7 @@ import contextlib
 import logging
 import json
 import os
+import re
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
@@ -146,6 +147,32 @@ def resumable_run(root: str | Path, experiment: str, run_name: str, run_id: str 
         yield active
 
 
+def log_runs(root: str | Path, experiment: str, runs: list[Mapping[str, Any]]) -> list[str]:
+    """Log several finished runs in one process (one MLflow import and store set-up for all):
+    each ``{"run_name", "metrics", "params", "tags", "artifacts"}``. Returns their run ids."""
+    if not is_rank_zero() or not runs:
+        return []
+    import mlflow
+
+    logging.getLogger("alembic").setLevel(logging.WARNING)
+    uri = tracking_uri(root)
+    mlflow.set_tracking_uri(uri)
+    set_experiment(mlflow, uri, experiment)
+    ids = []
+    for r in runs:
+        with mlflow.start_run(run_name=r["run_name"], tags=dict(r.get("tags") or {})) as active:
+            _log_params(mlflow, r.get("params"))
+            metrics = {k: float(v) for k, v in flatten(r.get("metrics") or {}).items()
+                       if isinstance(v, (int, float)) and not isinstance(v, bool)}
+            for i in range(0, len(metrics), 1000):
+                mlflow.log_metrics(dict(list(metrics.items())[i:i + 1000]))
+            for a in r.get("artifacts") or []:
+                if Path(a).exists():
+                    mlflow.log_artifact(str(a))
+            ids.append(active.info.run_id)
+    return ids
+
+
 def log_metrics(metrics: Mapping[str, float], step: int | None = None) -> None:
     if not (is_rank_zero() and _ACTIVE["on"]):
         return
@@ -175,7 +202,8 @@ def _activated() -> Iterator[None]:
 
 def _log_params(mlflow, params: Mapping[str, Any] | None) -> None:
     """Log (flattened, shortened) params in batches of 100, MLflow's limit per call."""
-    items = [(k, _short(v)) for k, v in flatten(params or {}).items()]
+    # MLflow keys allow only alphanumerics, _ - . space : / (a config key may hold a regex, e.g. in report.plots)
+    items = [(re.sub(r"[^\w\-. :/]", "_", k), _short(v)) for k, v in flatten(params or {}).items()]
     for i in range(0, len(items), 100):
         mlflow.log_params(dict(items[i:i + 100]))
 

@@ -65,14 +65,20 @@ def windows(frames: np.ndarray, length: int, stride: int, pad: str = "end", min_
 
 
 def gather(data: np.ndarray, offsets: np.ndarray, frames: np.ndarray, win: pd.DataFrame,
-           every: int = 1) -> np.ndarray:
+           every: int = 1, pad_value: float | None = None) -> np.ndarray:
     """Materialise windows: ``data`` ``[N, ...]`` -> ``[B, ceil(L / every), ...]``.
 
     ``offsets``/``frames`` ``[S]`` locate each sequence in ``data``. Frame
-    indices are clamped into their sequence (edge padding).
+    indices are clamped into their sequence (edge padding). ``pad_value`` instead
+    fills the padded frames with a constant: the control signals of a padded
+    (standing) stretch are 0, not the last frame's velocity repeated.
     """
     seq = win["seq"].to_numpy()
     L = int(win["length"].iloc[0]) if len(win) else 0
     t = win["start"].to_numpy()[:, None] + np.arange(0, L, every)[None, :]
-    t = np.clip(t, 0, frames[seq][:, None] - 1)
-    return data[offsets[seq][:, None] + t]
+    last = frames[seq][:, None] - 1
+    out = data[offsets[seq][:, None] + np.clip(t, 0, last)]
+    if pad_value is not None:
+        out = np.array(out, copy=True)
+        out[(t < 0) | (t > last)] = pad_value
+    return out

@@ -99,12 +99,29 @@ def controls_from_root(rxz: np.ndarray, theta: np.ndarray, fps: float) -> np.nda
 
 
 def integrate_controls(controls: np.ndarray, fps: float, start: np.ndarray | None = None) -> np.ndarray:
-    """Inverse of :func:`controls_from_root`: a root trajectory ``[T, 3]`` from controls ``[T, 3]``."""
-    x0, z0, th0 = (0.0, 0.0, 0.0) if start is None else start
-    turn = controls[:, 2] / fps
-    theta = th0 + np.concatenate([[0.0], np.cumsum(turn[:-1])])
-    dx = (controls[:, 0] * np.sin(theta) + controls[:, 1] * np.cos(theta)) / fps
-    dz = (controls[:, 0] * np.cos(theta) - controls[:, 1] * np.sin(theta)) / fps
-    x = x0 + np.concatenate([[0.0], np.cumsum(dx[:-1])])
-    z = z0 + np.concatenate([[0.0], np.cumsum(dz[:-1])])
-    return np.stack([x, z, wrap_angle(theta)], axis=-1)
+    """Inverse of :func:`controls_from_root`: root trajectories ``[..., T, 3]`` = ``(x, z, heading)``
+    from controls ``[..., T, 3]``, starting at ``start`` ``[..., 3]`` (default: the origin facing +Z)."""
+    controls = np.asarray(controls, dtype=np.float64)
+    lead = controls.shape[:-2]
+    x0, z0, th0 = np.moveaxis(np.broadcast_to(np.zeros(3) if start is None else np.asarray(start, np.float64),
+                                              lead + (3,)), -1, 0)
+
+    def run(v: np.ndarray, v0: np.ndarray) -> np.ndarray:      # v0 + [0, v_0, v_0 + v_1, ...] along time
+        c = np.cumsum(v[..., :-1], axis=-1)
+        return v0[..., None] + np.concatenate([np.zeros(lead + (1,)), c], axis=-1)
+
+    theta = run(controls[..., 2] / fps, th0)
+    dx = (controls[..., 0] * np.sin(theta) + controls[..., 1] * np.cos(theta)) / fps
+    dz = (controls[..., 0] * np.cos(theta) - controls[..., 1] * np.sin(theta)) / fps
+    return np.stack([run(dx, x0), run(dz, z0), wrap_angle(theta)], axis=-1)
+
+def to_global(local: np.ndarray, root: np.ndarray) -> np.ndarray:
+    """Global positions from root-relative, facing-normalised poses: the inverse of the pose part of
+    :func:`root_and_controls`. ``local`` ``[..., T, J, 3]``, ``root`` ``[..., T, 3]`` = ``(x, z, heading)``
+    (leading axes broadcast) -> ``[..., T, J, 3]``: each frame rotated to its heading about +Y,
+    then moved to the root's ground position (heights stay as in ``local``)."""
+    local, root = np.asarray(local), np.asarray(root)[..., None, :]     # root [..., T, 1, 3]
+    c, s = np.cos(root[..., 2]), np.sin(root[..., 2])
+    x, y, z = local[..., 0], local[..., 1], local[..., 2]
+    gx, gz = x * c + z * s + root[..., 0], -x * s + z * c + root[..., 1]
+    return np.stack([gx, np.broadcast_to(y, gx.shape), gz], axis=-1)

@@ -613,8 +613,17 @@ class RecurrentBaseline(MotionModel):
         normalised units), which is then frame 0. ``control_mode: given`` needs
         ``controls`` ``[B, length, 3]``; under ``predict`` the seed's controls are taken from
         ``controls[:, :S]`` when given, else zeros (the mean)."""
-        check_int("length", length)
         check_int("num_samples", num_samples)
+        out, _ = self.rollout(seed, controls, labels, length)
+        return out.repeat_interleave(num_samples, 0) if num_samples > 1 else out
+
+    @torch.no_grad()
+    def rollout(self, seed: Tensor | None, controls: Tensor | None = None, labels: Tensor | None = None,
+                length: int = 240) -> tuple[Tensor, Tensor | None]:
+        """:meth:`generate` (one sample) that also returns the roll-out's controls ``[B, length, 3]``
+        (normalised): under ``predict`` the seed's then the model's own predictions (what a
+        trajectory is integrated from), under ``given`` the given ones; ``None`` without controls."""
+        check_int("length", length)
         p = next(self.parameters())
         J, D = self.spec.joints, self.spec.dims
         if seed is None or seed.shape[1] == 0:
@@ -622,21 +631,26 @@ class RecurrentBaseline(MotionModel):
             seed = p.new_zeros(B, 1, J, D)
         seed = seed.to(p)
         B, S = seed.shape[:2]
+        if controls is not None:
+            controls = controls.to(p)
         if S >= length:
-            out = seed[:, :length]
-        else:
-            if controls is not None:
-                controls = controls.to(p)
-            seed_ctrl = None
-            if self.predict_controls:
-                seed_ctrl = controls[:, :S] if controls is not None else p.new_zeros(B, S, self.ctrl_dim)
-            y = self._state(seed, seed_ctrl)                                   # [B, S, Fy]
-            inp = torch.cat([y, y.new_zeros(B, length - 1 - S, y.shape[-1])], 1)
-            cond = self._cond(controls, labels, B, length, y)
-            mask = torch.arange(length - 1, device=p.device) < S
-            pred = self._rollout(inp, cond, mask)[:, S - 1:, :self.pose_dim]    # frames S..length-1
-            out = torch.cat([seed, self.unflat(pred)], 1)
-        return out.repeat_interleave(num_samples, 0) if num_samples > 1 else out
+            ctrl = controls[:, :length] if controls is not None and self.ctrl_dim else None
+            return seed[:, :length], ctrl
+        seed_ctrl = None
+        if self.predict_controls:
+            seed_ctrl = controls[:, :S] if controls is not None else p.new_zeros(B, S, self.ctrl_dim)
+        y = self._state(seed, seed_ctrl)                                   # [B, S, Fy]
+        inp = torch.cat([y, y.new_zeros(B, length - 1 - S, y.shape[-1])], 1)
+        cond = self._cond(controls, labels, B, length, y)
+        mask = torch.arange(length - 1, device=p.device) < S
+        pred = self._rollout(inp, cond, mask)[:, S - 1:]                   # frames S..length-1
+        out = torch.cat([seed, self.unflat(pred[..., :self.pose_dim].contiguous())], 1)
+        ctrl = None
+        if self.predict_controls:
+            ctrl = torch.cat([seed_ctrl, pred[..., self.pose_dim:]], 1)
+        elif self.given_controls:
+            ctrl = controls[:, :length]
+        return out, ctrl
 
     @torch.no_grad()
     def predict(self, batch: Batch) -> Tensor:

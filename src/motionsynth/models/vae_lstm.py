@@ -79,7 +79,7 @@ Speed (generation of a crowd is the use case; ``bench/generate_vae_lstm.py``)
 All characters are one batch; only the T' = T/4 roll-out steps loop in Python. The control
 half of every gate (``[W_ih; W_fh; W_h] h^c_t``) is one matmul over all steps before the
 loop; each step is one fused ``[W_ic; W_fc; W_c]`` matmul and four in-place elementwise
-kernels (:meth:`VaeLstmCell.rollout`), on one thread (:func:`_one_thread`). Convolutions
+kernels (:meth:`VaeLstmCell.rollout`), on one thread (:func:`~.base.one_thread`). Convolutions
 run channels-last on the time-major layout (:func:`conv_time`), the decoder's upsampling
 convolutions in polyphase form (:class:`UpConv`, ~half the FLOPs), and ELUs work in place
 when no graph is recorded.
@@ -87,36 +87,11 @@ when no graph is recorded.
 
 from __future__ import annotations
 
-from contextlib import contextmanager
-from typing import Iterator
-
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .base import Batch, DataSpec, MotionModel
-
-
-@contextmanager
-def _one_thread(device: torch.device) -> Iterator[None]:
-    """Run the block on one intra-op CPU thread (then restore the process's thread count).
-
-    The roll-out is 60 steps of six small kernels (a ``[B, H] x [H, 3H]`` matmul and ``[B, 2H]``
-    elementwise ops); with 2 threads each kernel is a thread barrier. Paper-size roll-out of
-    1,000 characters on a 2-core machine: 0.15 s on one thread, 0.32 s on two, and 3.0 s on two
-    when another process keeps a core busy (every barrier then waits for a time slice).
-    Whole-sequence work (the convolutions) keeps all threads. The thread count is process-wide
-    state, hence the restore in ``finally``.
-    """
-    n = torch.get_num_threads()
-    if device.type != "cpu" or n == 1:
-        yield
-        return
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(n)
+from .base import Batch, DataSpec, MotionModel, one_thread
 
 
 def _elu(x: Tensor) -> Tensor:
@@ -240,7 +215,7 @@ class VaeLstmCell(nn.Module):
         g[..., :2 * H] += self.gate_bias                                     # (a copy: the caller's g is kept)
         canvas = g.new_empty(g.shape[0], g.shape[1], H)  # [T', B, H]
         c = z1
-        with _one_thread(g.device):
+        with one_thread(g.device):
             for t in range(g.shape[0]):                      # the unavoidable recurrence (T' = T/4 steps)
                 a = torch.mm(c, w)                                        # [W_ic c, W_fc c, W_c c]
                 gates = a[:, :2 * H].add_(g[t, :, :2 * H]).sigmoid_()    # eqs. 7, 8: [i, f]

@@ -81,7 +81,7 @@ class WindowData:
         pose = self.norm(pose, root).astype(np.float32)
         controls = None
         if self.controls is not None:
-            c = gather(self.controls, self.offsets, self.frames, w)
+            c = gather(self.controls, self.offsets, self.frames, w, pad_value=0.0)   # padding stands still
             controls = torch.from_numpy(((c - self.ctrl_mean) / self.ctrl_std).astype(np.float32))
         labels = None
         if self.num_classes > 0:

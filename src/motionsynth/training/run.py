@@ -71,6 +71,23 @@ def build(cfg: dict[str, Any]):
     return model, train, val, tcfg
 
 
+def load_trained(run_dir: str | Path, paths: dict[str, Any] | None = None, checkpoint: str = "best.pt"):
+    """A trained run's model (eval mode, ``checkpoint``'s weights) and its training windows, rebuilt
+    from the run's own resolved ``config.yaml``. ``paths`` replaces entries of the stored
+    ``paths`` (they may be another machine's)."""
+    from .checkpoint import load
+
+    run_dir = Path(run_dir)
+    missing = [f for f in ("config.yaml", checkpoint) if not (run_dir / f).exists()]
+    if missing:
+        raise FileNotFoundError(f"{run_dir}: no {' or '.join(missing)} (not trained yet?)")
+    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+    cfg["paths"] = {**cfg.get("paths", {}), **{k: str(v) for k, v in (paths or {}).items()}}
+    model, train, _val, _ = build(cfg)
+    model.load_state_dict(load(run_dir / checkpoint)["model"])
+    return model.eval(), train
+
+
 def run_name(cfg: dict[str, Any]) -> str:
     """``run_name``, else ``<model>`` or ``<model>-<variant_name>``: names the run's folder under
     ``models/<dataset>/``, its metrics file and its MLflow run."""
@@ -115,7 +132,8 @@ def run(cfg: dict[str, Any], progress: bool = True) -> dict[str, Any]:
     tags = {"model": m, "dataset": ds, "stage": "train", "run": name, "variant": str(cfg.get("variant_name")), "git_commit": git_commit(cfg["paths"]["root"]),
             "dataset_hash": dataset_hash(cfg["paths"]["root"], ds), "profile": str(cfg.get("profile_name"))}
     with tracking.resumable_run(cfg["paths"]["root"], f"{cfg['tracking']['experiment_prefix']}/{ds}",
-                                run_name=f"train:{name}", run_id=trainer.run_id, params=cfg, tags=tags,
+                                run_name=f"train:{name}", run_id=trainer.run_id,
+                                params={k: v for k, v in cfg.items() if k not in ("eval", "report")}, tags=tags,
                                 enabled=bool(cfg["tracking"].get("enabled", True))) as active:
         trainer.run_id = active.info.run_id if active is not None else None
 

@@ -1,0 +1,108 @@
+"""GlocalNet Table 4 suite (``horizon``) on a tiny real cmu_aclstm project: rows, known answers, samples."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import REPO, build_eval_root, compose_cfg
+
+from motionsynth.evaluation import EvalContext, evaluate, horizon
+
+DS = "cmu_aclstm"
+HORIZONS = [80, 160, 240, 320, 400, 480, 560, 640]
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory, one_thread):
+    r = tmp_path_factory.mktemp("horizon")
+    runs = build_eval_root(r, DS, {"glogen": ("glogen", "none"), "locgen": ("locgen", "none"),
+                                   "seq2seq": ("seq2seq", "none"), "zero_velocity": ("zero_velocity", "none")},
+                           max_items=12, batches=1)            # 12 items: every class has a test sequence
+    (r / "conf").symlink_to(REPO / "conf")                     # the method labels (conf/model/*.yaml: label)
+    cfg = compose_cfg(r, DS, "eval.max_windows=100000", "eval.animation.sequences=2", "eval.threads=1")
+    cfg["dataset"]["evaluate"] = {**cfg["dataset"]["evaluate"], "suites": ["horizon"]}
+    ctx = evaluate(cfg, runs)
+    return ctx, pd.DataFrame([vars(x) for x in ctx.rows])
+
+
+def test_rows_cover_every_method_class_and_exactly_the_horizons(suite):
+    ctx, rows = suite
+    assert set(rows["table"]) == {"Table 4"} and set(rows["metric"]) == {"Euclidean distance per frame"}
+    assert {"GloGen", "GloGen + interpolation", "Seq2Seq", "Zero-velocity",
+            "Zero-velocity (world-oriented)"} == set(rows["method"])
+    data = ctx.data("glocal", "test")
+    present = {str(n) for n in data.meta["label_name"].to_numpy()[np.unique(data.windows["seq"])]}
+    assert present == {"indian", "martial", "salsa"}
+    expect = {"indian": "CMU Indian dance", "martial": "CMU martial arts", "salsa": "CMU salsa (ours only)"}
+    assert set(rows["compare_to"]) == {expect[c] for c in present}
+    for _, g in rows.groupby(["method", "compare_to"]):
+        assert list(g["column"]) == [f"{h}ms" for h in HORIZONS]           # exactly 80..640 ms, in order
+        assert np.isfinite(g["value"]).all() and (g["value"] >= 0).all() and (g["n"] > 0).all()
+    assert set(rows.loc[rows["method"].str.startswith("Zero"), "kind"]) == {"reference"}
+    assert rows.groupby(["method", "key"]).size().max() == 1                 # DVC metric keys are unique
+    # the DVC plot curves: one per class, one line per method
+    assert {f"euclid_vs_horizon_{c}" for c in present} == set(ctx.curves)
+
+
+def test_zero_velocity_equals_a_direct_numpy_computation(suite):
+    ctx, rows = suite
+    data = ctx.data("glocal", "test")
+    S = 5 * 4 + 1                                        # GloGen's t_in = 5 sparse poses every 5 frames
+    raw = ctx.raw(data, np.arange(len(data)))
+    pose = raw["pose"]                                   # [B, 96, 57, 3], acLSTM units
+    fps = float(data.rep["fps"])
+    names = dict(zip(data.meta["label"], data.meta["label_name"]))
+    zv = rows[rows["method"] == "Zero-velocity"]
+    for c in np.unique(raw["labels"]):
+        g = pose[raw["labels"] == c]
+        g = g - g[:, :, :1]                              # root (hip, joint 0) subtracted per frame
+        expect = []
+        for h in HORIZONS:
+            t = S - 1 + h * fps / 1000.0                 # exact fractional frame, linear in between
+            lo = int(math.floor(t))
+            w = t - lo
+            truth = (1 - w) * g[:, lo] + w * g[:, lo + 1]
+            d = (truth - g[:, S - 1]).reshape(len(g), -1)
+            expect.append(np.sqrt((d ** 2).sum(-1)).mean())
+        got = zv[zv["compare_to"].str.contains({"indian": "Indian", "martial": "martial",
+                                                 "salsa": "salsa"}[names[c]])]["value"].to_numpy()
+        np.testing.assert_allclose(got, expect, rtol=1e-4)
+        assert np.all(np.diff(expect) > -0.5)            # sanity: a frozen pose drifts away over time
+
+
+def test_world_oriented_row_differs_only_by_orientation(suite):
+    ctx, rows = suite
+    a = rows[rows["method"] == "Zero-velocity"].set_index(["compare_to", "column"])["value"]
+    b = rows[rows["method"] == "Zero-velocity (world-oriented)"].set_index(["compare_to", "column"])["value"]
+    assert (b.index == a.index).all() and not np.allclose(a, b)
+    assert (b / a).between(0.5, 2.0).all()               # same magnitude: only the heading differs
+
+
+def test_samples_are_whole_windows_from_the_same_seed(suite):
+    ctx, _ = suite
+    gt = ctx.samples["ground truth"]
+    assert gt.shape[0] == 2 and gt.shape[1:] == (96, 57, 3)
+    S = ctx.sample_meta["seed_frames"]
+    assert S == 21 and ctx.sample_meta["fps"] == 30 and len(ctx.sample_meta["parents"]) == 57
+    assert ctx.sample_meta["space"] == "3d" and ctx.sample_meta["trajectory"] is False
+    for key in ("GlocalNet", "GloGen + interpolation", "Seq2Seq", "Zero-velocity"):
+        x = ctx.samples[key]
+        assert x.shape == gt.shape and np.isfinite(x).all()
+        np.testing.assert_allclose(x[:, 0:S:5], gt[:, 0:S:5], atol=1e-4)     # seed keyframes are ground truth
+    np.testing.assert_allclose(ctx.samples["Seq2Seq"][:, :S], gt[:, :S], atol=1e-4)   # dense seed copied
+    np.testing.assert_allclose(ctx.samples["Zero-velocity"][:, S:], np.repeat(gt[:, S - 1:S], 96 - S, 1),
+                               atol=1e-4)
+
+
+def test_bad_options_get_clear_errors(suite, tmp_path):
+    ctx, _ = suite
+    cfg = dict(ctx.cfg)
+    cfg["dataset"] = {**cfg["dataset"], "evaluate": {"suites": [], "horizon": {"frame_mapping": "nearest"}}}
+    with pytest.raises(ValueError, match="frame_mapping"):
+        horizon.run(EvalContext(cfg, ctx.runs))
+    cfg["dataset"]["evaluate"]["horizon"] = {"horizons_ms": [80, 4000]}
+    with pytest.raises(ValueError, match="4000 ms"):
+        horizon.run(EvalContext(cfg, ctx.runs))

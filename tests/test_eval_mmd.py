@@ -1,0 +1,181 @@
+"""The mmd suite (GlocalNet Table 3) on a tiny real Human3.6M project: rows, calibration, samples, determinism."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import REPO, build_eval_root, compose_cfg
+
+from motionsynth.evaluation import EvalContext, evaluate
+from motionsynth.evaluation import mmd as suite
+
+DS = "h36m"
+MODELS = {"glogen": "GloGen", "seq2seq": "Seq2Seq", "zero_velocity": "Zero-velocity"}
+CALIBRATION = {"test": ["Real test clips, 2nd draw", "Real train clips", "Still real pose", "Reversed real clips",
+                        "Gaussian noise"],
+               "train": ["Real train clips, 2nd draw", "Real test clips", "Still real pose", "Reversed real clips",
+                         "Gaussian noise"]}
+SEEDED = {"Real test clips, 2nd draw", "Real train clips, 2nd draw", "Still real pose", "Gaussian noise"}
+COLS = ["MMD_avg", "MMD_seq", "velocity MMD_avg", "velocity MMD_seq"]
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory, one_thread):
+    r = tmp_path_factory.mktemp("mmdroot")
+    # 20 items: S11 (test) holds Eating, Sitting, Walking; the train subjects Eating and Walking, not Sitting
+    runs = build_eval_root(r, DS, {m: (m, "none") for m in MODELS}, max_items=20)
+    (r / "conf").symlink_to(REPO / "conf")  # the models' display labels (conf/model/<m>.yaml: label)
+    return r, runs
+
+
+def config(r: Path, **mmd) -> dict:
+    cfg = compose_cfg(r, DS, "eval.seeds=3", "eval.threads=1")
+    cfg["dataset"]["evaluate"] = {"suites": ["mmd"], "mmd": {**cfg["dataset"]["evaluate"].get("mmd", {}),
+                                                             "per_class": 25, **mmd}}
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def done(root):
+    r, runs = root
+    ctx = evaluate(config(r), runs)
+    return ctx, pd.DataFrame([vars(x) for x in ctx.rows])
+
+
+def value(table: pd.DataFrame, proto: str, method: str, column: str) -> float:
+    sel = table[(table.protocol == suite.PROTOCOLS[proto]) & (table.method == method) & (table.column == column)]
+    assert len(sel) == 1, (proto, method, column, len(sel))
+    return float(sel["value"].iloc[0])
+
+
+def test_rows_keys_and_protocols(done):
+    ctx, t = done
+    for proto in suite.PROTOCOLS:
+        for method in [*MODELS.values(), *CALIBRATION[proto]]:
+            for col in COLS:
+                v = value(t, proto, method, col)
+                assert math.isfinite(v) and 0 <= v <= 1.5, (proto, method, col, v)
+    assert len(t) == 2 * (len(MODELS) + 5) * len(COLS)
+    assert set(t.protocol) == {"test split (ours)", "train split (reference code)"}
+    assert (t.paper == "battan2021_glocalnet").all() and (t.table == "Table 3").all() and (t.metric == "MMD").all()
+    assert not t.duplicated(["method", "key"]).any()                 # one DVC metric per (method, key)
+    assert set(t.key) == {f"mmd/{p}/{c}" for p in ("test", "train")
+                          for c in ("mmd_avg", "mmd_seq", "velocity_mmd_avg", "velocity_mmd_seq")}
+    models = t[t.kind == "model"]
+    assert set(models.method) == set(MODELS.values()) and set(models.run) == set(MODELS)
+    assert models["std"].isna().all() and models.note.str.startswith("deterministic").all()
+    ref = t[t.kind == "reference"]
+    seeded = ref.method.isin(SEEDED)
+    assert (ref[seeded].seeds == 3).all() and ref[seeded]["std"].notna().all()
+    assert ref[~seeded]["std"].isna().all() and (ref.run == "").all()
+    # 2 classes in both splits (Eating, Walking), 25 clips each; Sitting has no train windows here
+    assert (t.n == 50).all() and t.condition.str.contains("Sitting").all()
+    # the same S11-against-train number under both protocols
+    for col in COLS:
+        assert value(t, "test", "Real train clips", col) == value(t, "train", "Real test clips", col)
+    # outputs written, metrics keyed by protocol
+    metrics = json.loads((ctx.paths["reports"] / "metrics" / f"{DS}.json").read_text())
+    assert metrics["glogen"]["mmd/train/mmd_avg"] == round(value(t, "train", "GloGen", "MMD_avg"), 6)
+
+
+def test_compare_to_is_the_published_table_3_string():
+    published = REPO.parent / "shared" / "papers" / "published_results.csv"
+    if not published.exists():
+        pytest.skip("../shared/papers/published_results.csv is not here")
+    p = pd.read_csv(published)
+    t3 = p[(p.paper == suite.PAPER) & (p.table == suite.TABLE)]
+    assert set(t3.dataset) == {suite.COMPARE_TO}
+    assert set(t3[t3.method == "GloGen"].column) == {"MMD_avg", "MMD_seq"}
+
+
+def test_calibration_rows_rank_as_they_must(done):
+    _, t = done
+    for proto in suite.PROTOCOLS:
+        second = CALIBRATION[proto][0]
+        for col in ("MMD_avg", "MMD_seq"):
+            assert value(t, proto, second, col) < value(t, proto, "Gaussian noise", col)
+        for col in ("velocity MMD_avg", "velocity MMD_seq"):
+            # a still pose has zero velocity: far from real motion, whatever its pose
+            assert value(t, proto, "Still real pose", col) > 5 * value(t, proto, second, col)
+            assert value(t, proto, "Still real pose", col) > 0.9
+            # Zero-velocity generates still sequences too: the very same velocity features
+            assert value(t, proto, "Zero-velocity", col) == value(t, proto, "Still real pose", col)
+    # the gap between subjects is larger than a second draw of the same subjects
+    assert value(t, "test", "Real train clips", "MMD_avg") > value(t, "test", "Real test clips, 2nd draw", "MMD_avg")
+
+
+def test_per_class_curve_and_samples(done, root):
+    ctx, _ = done
+    curve = pd.DataFrame(ctx.curves["mmd_per_class"])
+    assert set(curve.horizon) == {"Eating", "Walking"}
+    assert set(MODELS.values()) | {"Still real pose", "Gaussian noise"} <= set(curve.method)
+    assert np.isfinite(curve.value).all() and not curve.duplicated(["method", "horizon"]).any()
+    gt = ctx.samples["ground truth"]
+    assert gt.shape == (2, 60, 15, 2)
+    test = ctx.data("glocal", "test")
+    assert np.allclose(gt, ctx.raw(test, ctx.pick(test, 2))["pose"], atol=1e-3)     # pixels, hip-centred
+    for m in MODELS.values():
+        out = ctx.samples[m]
+        assert out.shape == gt.shape and np.isfinite(out).all()
+        assert np.abs(out[:, :10] - gt[:, :10]).max() < 1e-2                           # the seed, de-normalised
+    assert np.abs(gt).max() < 2000 and np.abs(gt).max() > 20                           # pixels, not normalised units
+    meta = ctx.sample_meta
+    assert meta["space"] == "2d" and abs(meta["fps"] - 50 / 3) < 1e-9
+    assert len(meta["parents"]) == len(meta["joints"]) == 15 and meta["joints"][0] == "RHip"
+    assert meta["seed_frames"] == 10 and meta["units"] == "pixels"
+    npz = np.load(ctx.paths["samples"] / f"{DS}.npz")
+    assert npz["m:GloGen"].shape == (2, 60, 15, 2)
+
+
+def test_rerun_gives_identical_numbers(done, root):
+    r, runs = root
+    _, first = done
+    ctx = EvalContext(config(r), runs)
+    suite.run(ctx)
+    again = pd.DataFrame([vars(x) for x in ctx.rows])
+    pd.testing.assert_frame_equal(first, again)
+
+
+def test_reference_exact_options_run(root):
+    r, runs = root
+    ctx = EvalContext(config(r, per_class=10, cross="paired", negative="nan"), {"zero_velocity": "zero_velocity"})
+    suite.run(ctx)
+    t = pd.DataFrame([vars(x) for x in ctx.rows])
+    assert np.isfinite(t.value).all() and (t.n == 20).all()
+    assert t.condition.str.contains("paired").all()
+
+
+@pytest.mark.parametrize("mmd, match", [({"bandwidth": 3}, "unknown key.*bandwidth"),
+                                        ({"per_class": 1}, "per_class must be an integer >= 2"),
+                                        ({"negative": "zero"}, "negative must be one of"),
+                                        ({"predicted": 60}, "dense windows .* >= 70 poses")])
+def test_bad_options_fail_clearly(root, mmd, match):
+    r, runs = root
+    with pytest.raises(ValueError, match=match):
+        suite.run(EvalContext(config(r, **mmd), runs))
+
+
+def test_calibration_fakes_and_picks():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(40, 50, 15, 2))
+    s = suite.still(x, np.random.default_rng(1))
+    assert (s == s[:, :1]).all()                                                      # held still
+    assert all(any((s[i, 0] == x[i, t]).all() for t in range(50)) for i in range(40))  # one of its own poses
+    lab = np.repeat([3, 7], 20)
+    x[lab == 7] += 5.0
+    z = suite.noise(np.repeat(x, 10, axis=0), np.repeat(lab, 10), np.random.default_rng(2))
+    assert abs(z[np.repeat(lab, 10) == 7].mean() - 5.0) < 0.05 and abs(z[np.repeat(lab, 10) == 3].std() - 1) < 0.05
+    labels = np.repeat([0, 1, 2], [10, 6, 9])
+    counts = {0: 4, 2: 3}
+    a = suite.per_class(labels, counts)
+    b = suite.per_class(labels, counts, exclude=a, rng=np.random.default_rng(0))
+    assert list(labels[a]) == [0] * 4 + [2] * 3 == list(labels[b]) and not set(a) & set(b)
+    assert list(a[:4]) == [0, 3, 6, 9]                                                # spread evenly
+    with pytest.raises(ValueError, match="class 1: 6 windows, 7 needed"):
+        suite.per_class(labels, {1: 7})
+
