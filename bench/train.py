@@ -33,11 +33,17 @@ class Step:
         self.optim.step()
 
 
+def dataset_cfg(name: str) -> dict:
+    return OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "dataset" / f"{name}.yaml"), resolve=True)
+
+
 def bench_model(name: str, size: str, tmp: str, steps: int, threads: int, peak: float, window: int | None = None,
                 dataset: str | None = None, batch_size: int | None = None, label: str | None = None) -> None:
     mcfg = OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "model" / f"{name}.yaml"), resolve=True)
     cls = model_class(mcfg["_target_"])
-    family = getattr(cls, "family", None) or "vae_lstm"
+    family = getattr(cls, "family", None)
+    if family is None:  # a model that takes any window family: the dataset's own (as training does)
+        family = dataset_cfg(dataset)["training"]["family"] if dataset else "vae_lstm"
     dataset = dataset or DATASET_FOR[family]
     bs = batch_size or int(mcfg.get("train", {}).get("batch_size", 32))
     batch, spec = real_batch(dataset, family, bs, f"{tmp}/{dataset}-{window}", max_items=40, length=window)

@@ -66,10 +66,11 @@ def test_rows_keys_and_protocols(done):
     assert not t.duplicated(["method", "key"]).any()                 # one DVC metric per (method, key)
     assert set(t.key) == {f"mmd/{p}/{c}" for p in ("test", "train")
                           for c in ("mmd_avg", "mmd_seq", "velocity_mmd_avg", "velocity_mmd_seq")}
-    models = t[t.kind == "model"]
+    models = t[t.run.fillna("") != ""]
     assert set(models.method) == set(MODELS.values()) and set(models.run) == set(MODELS)
     assert models["std"].isna().all() and models.note.str.startswith("deterministic").all()
-    ref = t[t.kind == "reference"]
+    assert set(models[models.kind == "reference"].method) == {"Zero-velocity"}   # trivial: listed as a reference
+    ref = t[(t.kind == "reference") & (t.run.fillna("") == "")]
     seeded = ref.method.isin(SEEDED)
     assert (ref[seeded].seeds == 3).all() and ref[seeded]["std"].notna().all()
     assert ref[~seeded]["std"].isna().all() and (ref.run == "").all()

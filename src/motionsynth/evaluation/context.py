@@ -116,6 +116,11 @@ class EvalContext:
             self._models[run] = (model.to(self.device).eval(), train)
         return self._models[run]
 
+    def kind(self, run: str) -> str:
+        """``Row.kind`` of a run: ``"reference"`` for a trivial model that learns nothing (the class
+        attribute ``reference``, e.g. zero-velocity), else ``"model"``."""
+        return "reference" if getattr(type(self.model(run)[0]), "reference", False) else "model"
+
     def label(self, model_name: str) -> str:
         """The method's display name (``label`` in ``conf/model/<model>.yaml``, as the papers write it)."""
         for conf_dir in (self.paths["root"] / "conf", Path(__file__).resolve().parents[3] / "conf"):

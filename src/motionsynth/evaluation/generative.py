@@ -653,12 +653,13 @@ def _run(ctx: EvalContext, o: dict[str, Any]) -> None:
                                      "its multimodality comes from the different seed windows only, a "
                                      "per-condition multimodality would be 0 by construction); ")
         sto = f"stochastic: mean +- std over seeds {list(seeds)}; " if stochastic else ""
-        add_row(m.name, per, "model", m.condition, det + sto + count_note, m.run)
+        kind = ctx.kind(m.run) if m.run in ctx.runs else "model"
+        add_row(m.name, per, kind, m.condition, det + sto + count_note, m.run)
         if phys:
             pnote = (det + sto + "generated frames only (from the last seed frame), metres; "
                      + ("world positions from the model's own controls (integrated)" if "Foot skating ratio|ratio"
                         in per_phys[0] else "root-relative poses (no trajectory: foot skating not reported)"))
-            add_physical(m.name, per_phys, "model", m.condition, pnote, m.run)
+            add_physical(m.name, per_phys, kind, m.condition, pnote, m.run)
         timings[m.name] = round(time.perf_counter() - t0, 2)
     log.info("%s: generative suite %.1f s (classifier %.1f s, %s); per method %s", ctx.name,
              time.perf_counter() - t_start, t_clf, "cached" if cmeta.get("cached") else "trained", timings)

@@ -371,13 +371,13 @@ def run(ctx: EvalContext) -> None:
             for proto in PROTOCOLS:
                 for col, _, _ in FIGURES.values():
                     ctx.add(value=math.nan, column=col, method=method, protocol=PROTOCOLS[proto],
-                            key=f"mmd/{proto}/{slug(col)}", run=run_name, kind="model",
+                            key=f"mmd/{proto}/{slug(col)}", run=run_name, kind=ctx.kind(run_name),
                             note="the model generated non-finite poses", **base)
             continue
         for proto in PROTOCOLS:
             res = score(proto, fakes[proto], lab)
             add(proto, method, [res], f"{note}; seeded with the {proto}-split windows ({SUBJECTS[proto]}) it is "
-                "scored against", run=run_name, kind="model")
+                "scored against", run=run_name, kind=ctx.kind(run_name))
             if proto == "test":
                 per_class_curve(method, [res])
         outputs[run_name] = (method, model)

@@ -26,6 +26,8 @@ from .recurrent import check_family, check_int, default_seed_frames
 
 class ZeroVelocity(MotionModel):
     family = None  # type: ignore[assignment]
+    #: a trivial reference, not a learnt model: evaluation tables list it with the calibration rows
+    reference = True
     uses_controls = False
     uses_labels = False
 
