@@ -647,7 +647,7 @@ def _run(ctx: EvalContext, o: dict[str, Any]) -> None:
                 pose = ctx.physical(test, g.z)
                 root = None
                 if has_traj and g.controls is not None:
-                    root = np.stack([integrate_controls(c, fps, r0) for c, r0 in zip(g.controls, raw_a["root"][:, 0])])
+                    root = integrate_controls(g.controls, fps, raw_a["root"][:, 0])      # [B, T, 3], batched
                 per_phys.append(physical(pose, root, g.seed_len))
         det = "" if stochastic else ("deterministic (same seed frames and class -> same motion: one generation; "
                                      "its multimodality comes from the different seed windows only, a "
