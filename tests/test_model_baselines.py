@@ -13,7 +13,7 @@ from motionsynth.models.aclstm import ACLSTM
 from motionsynth.models.base import Batch, DataSpec
 from motionsynth.models.erd import ERD
 from motionsynth.models.lstm3lr import LSTM3LR
-from motionsynth.models.recurrent import RecurrentBaseline
+from motionsynth.models.recurrent import RecurrentBaseline, gemm_nt
 from motionsynth.models.seq2seq import Seq2Seq
 from motionsynth.models.zero_velocity import ZeroVelocity
 
@@ -204,6 +204,33 @@ def test_step_implementations_agree(name):
         assert torch.allclose(res[impl][0], res["deferred"][0], atol=1e-12)
         for a, c in zip(res[impl][1], res["deferred"][1]):
             assert torch.allclose(a, c, atol=1e-10)
+
+
+@pytest.mark.parametrize("name", ["aclstm", "seq2seq"])
+def test_float32_gemm_path_agrees(name):
+    """In float32 the step GEMMs and the weight-gradient GEMM go through oneDNN where the
+    build has it (:func:`gemm_nt`): same loss and gradients as the LSTMCell stack, to float32
+    summation order."""
+    cls, kw = SMALL[name]
+    b = synthetic(LOCO, B=4, T=26)
+    res = {}
+    for impl in ("deferred", "cell"):
+        torch.manual_seed(1)
+        m = cls(LOCO, step_impl=impl, seed_frames=17, **{**kw, "hidden_size": 48}).train()
+        loss, _ = m.loss(b)
+        loss.backward()
+        res[impl] = (loss.detach(), [p.grad for p in m.parameters()])
+    assert torch.allclose(res["cell"][0], res["deferred"][0], rtol=1e-5)
+    for a, c in zip(res["cell"][1], res["deferred"][1]):
+        assert torch.allclose(a, c, rtol=1e-3, atol=1e-5 * float(a.abs().max()))
+
+
+def test_gemm_nt_matches_addmm():
+    g = torch.Generator().manual_seed(0)
+    x, w, bias = torch.randn(32, 300, generator=g), torch.randn(200, 300, generator=g), torch.randn(200, generator=g)
+    assert torch.allclose(gemm_nt(x, w, bias), torch.addmm(bias, x, w.t()), atol=1e-4)
+    assert torch.allclose(gemm_nt(x, w), x @ w.t(), atol=1e-4)
+    assert torch.equal(gemm_nt(x.double(), w.double()), x.double() @ w.double().t())  # other dtypes: plain mm
 
 
 @pytest.mark.parametrize("name", ["erd", "seq2seq", "aclstm", "scheduled_sampling"])
