@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 export DVC_NO_ANALYTICS := 1
 export PATH := $(abspath $(BIN)):$(PATH)
 
-.PHONY: install run test bench data-bench clean-outputs
+.PHONY: install run test bench data-bench clean-outputs ui
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,6 +30,9 @@ bench: install
 	$(BIN)/python bench/pipeline.py
 	$(BIN)/python bench/train.py
 	$(BIN)/python bench/generate.py
+
+ui: install
+	$(BIN)/motionsynth ui
 
 clean-outputs:
 	rm -rf data/interim data/processed data/splits reports/data reports/figures/data reports/data.md reports/metrics/data.json

@@ -12,15 +12,21 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))  # runnable without install
+# Jobs that Hydra's launchers start in other processes (submitit locally or on SLURM, which
+# unpickle the task function; joblib's workers) import this module again: they find it and the
+# library through PYTHONPATH, which those processes inherit.
+os.environ["PYTHONPATH"] = os.pathsep.join(
+    dict.fromkeys([str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1] / "src"),
+                   *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]))
 
 from motionsynth import tracking  # noqa: E402
 
 log = logging.getLogger("motionsynth")
 
 
-def progress(cfg: DictConfig) -> bool:
+def progress(cfg: DictConfig | dict) -> bool:
     """Progress bars on an interactive terminal only (not in CI logs); PROGRESS=0 turns them off."""
-    return bool(cfg.progress) and os.environ.get("PROGRESS", "1") != "0" and sys.stderr.isatty()
+    return bool(cfg.get("progress", True)) and os.environ.get("PROGRESS", "1") != "0" and sys.stderr.isatty()
 
 
 def write_json(path: str | Path, obj: Any) -> None:
@@ -51,3 +57,18 @@ def track(cfg: DictConfig, stage: str, params: dict, metrics: dict, artifacts: l
 
 def resolved(cfg: DictConfig, key: str) -> dict:
     return OmegaConf.to_container(cfg[key], resolve=True)  # type: ignore[return-value]
+
+
+#: Hydra overrides for the ranks != 0 of a torchrun job: no .hydra/ copy, log to stdout only, no run folder
+NON_ZERO_RANK_HYDRA = ("hydra.output_subdir=null", "hydra/job_logging=stdout", "hydra.run.dir=.")
+
+
+def rank_zero_hydra_argv() -> None:
+    """Under ``torchrun``, leave Hydra's output folders to rank 0: call before ``main()``.
+
+    A worker whose ``RANK`` is set and not ``"0"`` gets :data:`NON_ZERO_RANK_HYDRA` appended
+    to ``sys.argv`` (Hydra applies overrides in order, so they win over the command line's);
+    rank 0 and single processes (``RANK`` unset) are left as they are."""
+    rank = os.environ.get("RANK")
+    if rank is not None and rank != "0":
+        sys.argv += [o for o in NON_ZERO_RANK_HYDRA if o not in sys.argv]

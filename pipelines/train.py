@@ -2,25 +2,39 @@
 
     python pipelines/train.py dataset=bandai2_locomotion model=vae_lstm [train.lr=1e-3 ...]
     python pipelines/train.py dataset=bandai2_locomotion model=erd variant=controls_given
+    python pipelines/train.py -m dataset=h36m model=glogen,seq2seq train.lr=1e-3,2e-3 [hydra/launcher=joblib]
+    torchrun --nproc_per_node=2 pipelines/train.py dataset=h36m model=glogen
+
+A multirun job is an MLflow child run of the sweep's parent run and keeps its checkpoints in
+models/sweeps/ (motionsynth.sweeps); it returns `optimized_metric` (else `train.monitor`) to
+the sweeper (hparams_search=...).
 """
 
 import hydra
-from _common import log, progress, write_json
+from _common import log, progress, rank_zero_hydra_argv, write_json
 from omegaconf import DictConfig, OmegaConf
 
+from motionsynth.sweeps import job_context
+from motionsynth.training.distributed import is_main
 from motionsynth.training.run import run, run_name
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
-def main(cfg: DictConfig) -> None:
+def main(cfg: DictConfig) -> float:
     if cfg.get("model") is None:
         raise SystemExit("choose a model: python pipelines/train.py model=<name> (one of conf/model/*.yaml)")
-    summary = run(OmegaConf.to_container(cfg, resolve=True), progress=progress(cfg))
-    name = run_name(OmegaConf.to_container(cfg, resolve=True))
-    write_json(f"{cfg.paths.reports}/metrics/train/{cfg.dataset.name}/{name}.json", summary)
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    job = job_context(resolved)
+    summary = run(resolved, progress=progress(cfg), job=job)
+    name = run_name(resolved)
+    if not job.sweep and is_main():  # a sweep job's summary stays in its own folder, not in the DVC metrics
+        write_json(f"{cfg.paths.reports}/metrics/train/{cfg.dataset.name}/{name}.json", summary)
+    metric = cfg.get("optimized_metric") or summary["monitor"]
     log.info("train %s on %s: %d epochs, best %s = %.5f", name, cfg.dataset.name,
-             summary["epochs_run"], summary["monitor"], summary.get(summary["monitor"], float("nan")))
+             summary["epochs_run"], metric, summary.get(metric, float("nan")))
+    return float(summary.get(metric, float("nan")))
 
 
 if __name__ == "__main__":
+    rank_zero_hydra_argv()  # torchrun: ranks > 0 write no Hydra output folders
     main()

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import pytest
 import yaml
+
+from motionsynth.params import compose as compose_params
 from conftest import REPO, STORE
 
 DATASETS = ["bandai1", "bandai2_locomotion", "cmu_aclstm", "h36m", "ntu_samples"]
@@ -59,9 +61,8 @@ def smoke_clone(tmp_path_factory):
     dvc = [sys.executable, "-m", "dvc"]
     sh(dvc + ["remote", "modify", "--local", "team", "url", str(STORE.parent.parent)], dst, env)
     sh(dvc + ["pull", "--allow-missing"], dst, env)
-    params = yaml.safe_load((dst / "params.yaml").read_text())
-    params["profile"] = "smoke"
-    (dst / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    # what `dvc exp run -S profile=smoke` writes: params.yaml composed from conf/ with the smoke profile
+    (dst / "params.yaml").write_text(compose_params(dst, ["profile=smoke"]))
     out = sh(dvc + ["repro", *TARGETS], dst, env)
     out += sh(dvc + ["repro", "-s", "report"], dst, env)
     return dst, env, out
@@ -125,7 +126,7 @@ def test_smoke_train_stages_write_models_metrics_and_mlflow_runs(smoke_clone):
         assert "val/zero_velocity_mse" in metrics
         (run_id, status), = con.execute(
             "select r.run_uuid, r.status from runs r join tags t on t.run_uuid = r.run_uuid "
-            "where r.name = ? and t.key = 'dataset' and t.value = ?", (f"train:{m}", ds))
+            "where r.name = ? and t.key = 'dataset' and t.value = ?", (f"train:{m}@{ds}", ds))
         assert status == "FINISHED"
         tags = dict(con.execute("select key, value from tags where run_uuid = ?", (run_id,)).fetchall())
         assert tags["model"] == m and tags["dataset"] == ds and len(tags["git_commit"]) == 40

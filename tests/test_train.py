@@ -112,7 +112,7 @@ def test_mlflow_run_has_params_tags_metrics_and_artifacts(root, tmp_path, monkey
     cfg = config(root, "model=vae_lstm", "tracking.enabled=true", f"paths.models={tmp_path}/m")
     summary = run(cfg, progress=False)
     con = sqlite3.connect(db)
-    (run_id,) = con.execute("select run_uuid from runs where name='train:vae_lstm'").fetchone()
+    (run_id,) = con.execute("select run_uuid from runs where name='train:vae_lstm@bandai2_locomotion'").fetchone()
     tags = dict(con.execute("select key, value from tags where run_uuid=?", (run_id,)).fetchall())
     assert tags["model"] == "vae_lstm" and tags["dataset"] == DS and "git_commit" in tags and "dataset_hash" in tags
     params = dict(con.execute("select key, value from params where run_uuid=?", (run_id,)).fetchall())

@@ -2,6 +2,7 @@
 
     motionsynth generate [key=value ...]     synthesise motion to BVH / GIF / NPZ (conf/generate.yaml)
     motionsynth generate --help              options and examples
+    motionsynth ui [--port N]                browse the MLflow runs in a web browser (motionsynth/ui.py)
 
 Input problems print one message (no traceback) and exit with code 2; unexpected failures exit
 with 1 (set MOTIONSYNTH_DEBUG=1 for the traceback).
@@ -17,10 +18,12 @@ from typing import Sequence
 
 USAGE = """usage: motionsynth generate [key=value ...]
        motionsynth generate --help
+       motionsynth ui [--port N] [--host 127.0.0.1] [--backend-store-uri URI]
 
 commands:
   generate   make a motion clip with a trained model and write it as BVH (for animation
              tools), GIF (a quick look) and NPZ (joint positions for scripts)
+  ui         start the MLflow UI on the project's runs and print its address (Ctrl-C stops it)
 """
 
 GENERATE_HELP = """usage: motionsynth generate [key=value ...]
@@ -114,6 +117,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(USAGE, file=sys.stdout if args else sys.stderr)
         return 0 if args else 2
     cmd, rest = args[0], args[1:]
+    if cmd == "ui":
+        from .ui import main as ui_main
+
+        return ui_main(rest)
     if cmd != "generate":
         print(f"motionsynth: unknown command {cmd!r}\n\n{USAGE}", file=sys.stderr)
         return 2

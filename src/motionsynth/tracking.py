@@ -21,23 +21,49 @@ _ACTIVE = {"on": False}  # inside a run: log_metrics / log_artifact write to it
 
 
 def tracking_uri(root: str | Path) -> str:
+    """``$MLFLOW_TRACKING_URI``, else the project's ``mlflow.db``. Inside a ``dvc exp run``
+    temporary workspace (``<repo>/.dvc/tmp/exps/...``) that is the repository's own
+    ``mlflow.db``, so queued experiments land beside every other run."""
     env = os.environ.get("MLFLOW_TRACKING_URI")
     if env:
         return env
-    return f"sqlite:///{Path(root).resolve() / 'mlflow.db'}"
+    root = Path(root).resolve()
+    marker = f"{os.sep}.dvc{os.sep}tmp{os.sep}exps{os.sep}"
+    if marker in f"{root}{os.sep}":
+        root = Path(f"{root}{os.sep}".split(marker, 1)[0])
+    return f"sqlite:///{root / 'mlflow.db'}"
+
+
+@contextlib.contextmanager
+def _store_lock(uri: str) -> Iterator[None]:
+    """An exclusive file lock beside a local SQLite store (``mlflow.db.lock``) while a process
+    opens it: the first open creates the schema, and two processes doing that at once (two
+    sweep jobs, a sweep and a ``dvc exp``) fail on "table already exists". Other stores: no-op."""
+    if not uri.startswith("sqlite:///"):
+        yield
+        return
+    import fcntl
+
+    db = Path(uri[len("sqlite:///"):])
+    db.parent.mkdir(parents=True, exist_ok=True)
+    with open(db.with_name(db.name + ".lock"), "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def set_experiment(mlflow, uri: str, experiment: str):
     """Select (creating if needed) ``experiment``. For a local SQLite store, artifacts go to
-    ``mlartifacts/`` beside the database rather than to the working directory."""
-    exp = mlflow.get_experiment_by_name(experiment)
-    if exp is None and uri.startswith("sqlite:///"):
-        art = Path(uri[len("sqlite:///"):]).parent / "mlartifacts"
-        try:
+    ``mlartifacts/`` beside the database rather than to the working directory. Opening the
+    store and creating the experiment happen under :func:`_store_lock`."""
+    with _store_lock(uri):
+        exp = mlflow.get_experiment_by_name(experiment)
+        if exp is None and uri.startswith("sqlite:///"):
+            art = Path(uri[len("sqlite:///"):]).parent / "mlartifacts"
             mlflow.create_experiment(experiment, artifact_location=art.as_uri())
-        except Exception:  # created meanwhile by a parallel job
-            pass
-    return mlflow.set_experiment(experiment)
+        return mlflow.set_experiment(experiment)
 
 
 def is_rank_zero() -> bool:
@@ -118,8 +144,9 @@ def _serve(uri: str, experiment: str) -> None:
 @contextlib.contextmanager
 def resumable_run(root: str | Path, experiment: str, run_name: str, run_id: str | None = None,
                   params: Mapping[str, Any] | None = None, tags: Mapping[str, str] | None = None,
-                  enabled: bool = True) -> Iterator[Any]:
+                  enabled: bool = True, parent_run_id: str | None = None) -> Iterator[Any]:
     """An MLflow run for a long job, continued (same run id) when the job resumes from a checkpoint.
+    ``parent_run_id``: a child of that run (a Hydra sweep's parent, :mod:`motionsynth.sweeps`).
 
     Yields the active run, or ``None`` on non-zero ranks or when ``enabled`` is false;
     :func:`log_metrics` and :func:`log_artifact` are no-ops outside such a run.
@@ -140,8 +167,11 @@ def resumable_run(root: str | Path, experiment: str, run_name: str, run_id: str 
             resume = run_id
         except Exception:  # the run was deleted or lives in another store: start a new one
             resume = None
+    tags = dict(tags or {})
+    if parent_run_id:
+        tags["mlflow.parentRunId"] = parent_run_id
     with mlflow.start_run(run_id=resume, run_name=None if resume else run_name,
-                          tags=dict(tags or {})) as active, _activated():
+                          tags=tags) as active, _activated():
         if not resume:
             _log_params(mlflow, params)
         yield active
@@ -200,12 +230,26 @@ def _activated() -> Iterator[None]:
         _ACTIVE["on"] = False
 
 
+def _param_items(params: Mapping[str, Any] | None) -> list[tuple[str, str]]:
+    """Flattened, shortened params with keys MLflow accepts (alphanumerics, _ - . space : /;
+    a config key may hold a regex, e.g. in report.plots)."""
+    return [(re.sub(r"[^\w\-. :/]", "_", k), _short(v)) for k, v in flatten(params or {}).items()]
+
+
 def _log_params(mlflow, params: Mapping[str, Any] | None) -> None:
-    """Log (flattened, shortened) params in batches of 100, MLflow's limit per call."""
-    # MLflow keys allow only alphanumerics, _ - . space : / (a config key may hold a regex, e.g. in report.plots)
-    items = [(re.sub(r"[^\w\-. :/]", "_", k), _short(v)) for k, v in flatten(params or {}).items()]
+    """Log params in batches of 100, MLflow's limit per call."""
+    items = _param_items(params)
     for i in range(0, len(items), 100):
         mlflow.log_params(dict(items[i:i + 100]))
+
+
+def log_params_client(client, run_id: str, params: Mapping[str, Any]) -> None:
+    """:func:`_log_params` for a run that is not the active one (``MlflowClient``)."""
+    from mlflow.entities import Param
+
+    items = [Param(k, v) for k, v in _param_items(params)]
+    for i in range(0, len(items), 100):
+        client.log_batch(run_id, params=items[i:i + 100])
 
 
 def _short(v: Any) -> str:

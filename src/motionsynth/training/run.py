@@ -18,11 +18,16 @@ import yaml
 
 from .. import tracking
 from ..models.base import MotionModel
+from . import distributed
 from .checkpoint import fingerprint
 from .data import open_split
 from .trainer import TrainConfig, Trainer, seed_everything
 
 log = logging.getLogger(__name__)
+
+
+#: config sections about other stages or the stage graph, not this training run (not logged as its params)
+PIPELINE_KEYS = ("eval", "report", "datasets", "evaluate", "train_runs")
 
 
 def model_class(target: str) -> type[MotionModel]:
@@ -119,22 +124,32 @@ def dataset_hash(root: str | Path, dataset: str) -> str:
     return "+".join(parts) or "unknown"
 
 
-def run(cfg: dict[str, Any], progress: bool = True) -> dict[str, Any]:
-    """Train one (model, dataset) pair; returns the summary written to the metrics file."""
+def run(cfg: dict[str, Any], progress: bool = True, job=None) -> dict[str, Any]:
+    """Train one (model, dataset) pair; returns the summary written to the metrics file.
+
+    ``job`` (:class:`motionsynth.sweeps.Job`): where a sweep's job writes and its MLflow
+    parent; ``None``: the DVC stage layout, ``<paths.models>/<dataset>/<run_name>``."""
+    from ..sweeps import Job, mlflow_run_name
+
+    job = job or Job()
     model, train, val, tcfg = build(cfg)
     ds, m, name = cfg["dataset"]["name"], cfg["model"]["name"], run_name(cfg)
-    out = Path(cfg["paths"]["models"]) / ds / name
+    out = Path(job.out_dir) if job.out_dir else Path(cfg["paths"]["models"]) / ds / name
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    main = distributed.is_main()  # under torchrun only rank 0 writes files (the trainer syncs the ranks)
+    if main:
+        (out / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     fp = fingerprint({k: cfg.get(k) for k in ("dataset", "model", "train", "seed", "model_size", "model_args")})
     trainer = Trainer(model, train, val, tcfg, out, fp, progress=progress)
     trainer.try_resume()
-    tags = {"model": m, "dataset": ds, "stage": "train", "run": name, "variant": str(cfg.get("variant_name")), "git_commit": git_commit(cfg["paths"]["root"]),
-            "dataset_hash": dataset_hash(cfg["paths"]["root"], ds), "profile": str(cfg.get("profile_name"))}
-    with tracking.resumable_run(cfg["paths"]["root"], f"{cfg['tracking']['experiment_prefix']}/{ds}",
-                                run_name=f"train:{name}", run_id=trainer.run_id,
-                                params={k: v for k, v in cfg.items() if k not in ("eval", "report")}, tags=tags,
-                                enabled=bool(cfg["tracking"].get("enabled", True))) as active:
+    tags = {"model": m, "dataset": ds, "stage": "train", "run": name, "variant": str(cfg.get("variant_name")),
+            "git_commit": git_commit(cfg["paths"]["root"]), "dataset_hash": dataset_hash(cfg["paths"]["root"], ds),
+            "profile": str(cfg.get("profile_name")), "overrides": " ".join(job.overrides), "checkpoints": str(out)}
+    with tracking.resumable_run(cfg["paths"]["root"], job.experiment or f"{cfg['tracking']['experiment_prefix']}/{ds}",
+                                run_name=mlflow_run_name(name, ds, job.name_overrides), run_id=trainer.run_id,
+                                params={k: v for k, v in cfg.items() if k not in PIPELINE_KEYS}, tags=tags,
+                                enabled=bool(cfg["tracking"].get("enabled", True)),
+                                parent_run_id=job.parent_run_id) as active:
         trainer.run_id = active.info.run_id if active is not None else None
 
         def on_epoch(epoch: int, metrics: dict) -> None:
@@ -150,11 +165,12 @@ def run(cfg: dict[str, Any], progress: bool = True) -> dict[str, Any]:
                    "train_windows": len(train), "val_windows": len(val)}
         if "val/zero_velocity_mse" in best:
             summary["beats_zero_velocity"] = bool(best["val/pred_mse"] < best["val/zero_velocity_mse"])
-        (out / "summary.json").write_text(json.dumps(summary, indent=1))
-        png = sample_figure(model, val, out / "sample.png", seed=tcfg.seed)
-        tracking.log_metrics({f"best/{k.split('/', 1)[-1]}": v for k, v in best.items() if k != "epoch"})
-        for art in (out / "config.yaml", out / "best.pt", png):
-            tracking.log_artifact(art)
+        if main:
+            (out / "summary.json").write_text(json.dumps(summary, indent=1))
+            png = sample_figure(model, val, out / "sample.png", seed=tcfg.seed)
+            tracking.log_metrics({f"best/{k.split('/', 1)[-1]}": v for k, v in best.items() if k != "epoch"})
+            for art in (out / "config.yaml", out / "best.pt", png):
+                tracking.log_artifact(art)
     return summary
 
 

@@ -13,6 +13,44 @@
   ``model.predict`` on the frames after its seed, in normalised units) and
   ``val/zero_velocity_mse`` (the same frames predicted by repeating the last
   seed frame).
+* Multi-process data parallel (DDP) under ``torchrun`` (:mod:`.distributed`; a single
+  process runs exactly the code it ran before), e.g.
+  ``torchrun --standalone --nproc_per_node=2 pipelines/train.py dataset=... model=...``:
+
+  - the model is wrapped in ``torch.nn.parallel.DistributedDataParallel`` (through
+    :class:`_LossForward`, whose ``forward`` is ``model.loss``, so DDP's reducer is
+    prepared by the call that builds the graph); DDP broadcasts rank 0's initial weights
+    and averages the gradients over ranks in every backward. ``find_unused_parameters``
+    is off (it costs a graph traversal per step, and every model's loss uses all its
+    parameters); a model whose loss leaves parameters out on some steps sets the class
+    attribute ``ddp_find_unused_parameters = True`` (without it DDP stops with an error
+    naming the parameters, it does not hang).
+  - ``train.batch_size`` is the batch of ONE process: the global batch of an optimiser step
+    is ``world x batch_size``. Rank ``r`` takes every ``world``-th batch of the
+    ``(seed, epoch)`` permutation (:meth:`WindowData.iterate` with ``rank``/``world``,
+    ``torch.utils.data.DistributedSampler`` semantics; the epoch is passed, as
+    ``DistributedSampler.set_epoch`` would be, so the shuffle differs per epoch). Global
+    step ``k`` therefore covers exactly the windows one process with batch
+    ``world x batch_size`` sees at its step ``k``, and ``max_batches_per_epoch`` counts
+    these global steps. Each rank's loss is weighted by ``world x (its windows) / (the
+    step's windows)`` before the backward, so DDP's gradient average is the gradient of
+    the mean over the step's windows also when the last batches are short; a rank whose
+    shard has run out on the last step runs its previous batch with weight 0, so every rank
+    joins every gradient all-reduce (instead of ``DistributedSampler``'s padding with
+    repeated windows). Exact for a loss that is a mean over the batch's windows (a
+    per-window term averaged over the batch); otherwise the usual DDP approximation.
+  - ``train/*`` metrics are means over the windows of all ranks (all-reduce of sums and
+    counts). Validation: every rank evaluates the same full validation set with the same
+    (all-reduced, hence identical) weights, so the metrics, the best epoch, patience and
+    early stopping agree on every rank without any communication.
+  - the torch RNG is reseeded at the start of every epoch from ``(seed, epoch, rank)``: ranks
+    draw different noise (dropout, sampling) for their different windows, and a resumed run
+    draws what an uninterrupted one would.
+  - only rank 0 writes ``best.pt`` / ``last.pt``, calls ``on_epoch`` / ``on_step`` (the
+    logging hooks) and shows progress; a barrier after each epoch's writes keeps the other
+    ranks from running ahead (into the next epoch, a resume or the end of the run) before
+    the checkpoint is on disk. :meth:`Trainer.try_resume` reads ``last.pt`` on every rank
+    (the output folder must be one all ranks see: always so on one node).
 """
 
 from __future__ import annotations
@@ -31,6 +69,7 @@ from tqdm.auto import tqdm
 
 from ..models.base import Batch, MotionModel
 from . import checkpoint as ckpt
+from . import distributed
 from .data import WindowData
 
 log = logging.getLogger(__name__)
@@ -39,7 +78,7 @@ log = logging.getLogger(__name__)
 @dataclass
 class TrainConfig:
     epochs: int = 20
-    batch_size: int = 32
+    batch_size: int = 32          # per process: under torchrun the global batch is world x batch_size
     optimizer: str = "adam"
     lr: float = 1e-3
     weight_decay: float = 0.0
@@ -49,7 +88,7 @@ class TrainConfig:
     min_delta: float = 0.0
     monitor: str = "val/pred_mse"
     checkpoint_every: int = 1
-    max_batches_per_epoch: int | None = None
+    max_batches_per_epoch: int | None = None  # optimiser steps (global batches) per epoch
     val_windows: int | None = None    # validate on N evenly spaced windows (None: all): the same ones for every model
     eval_batch_size: int = 64
     seed: int = 0
@@ -117,16 +156,49 @@ def target_of(model: MotionModel, batch: Batch) -> torch.Tensor:
     return model.target(batch) if hasattr(model, "target") else batch.pose
 
 
+class _LossForward(torch.nn.Module):
+    """``forward(batch) = model.loss(batch)``: what ``DistributedDataParallel`` wraps (models
+    train through :meth:`MotionModel.loss`, not ``forward``), so that DDP prepares its reducer
+    in the same call that builds the graph. Holds no parameters of its own: checkpoints keep
+    saving ``model.state_dict()`` with its usual keys."""
+
+    def __init__(self, model: MotionModel):
+        super().__init__()
+        self.model = model
+
+    def forward(self, batch: Batch) -> tuple[torch.Tensor, dict[str, float]]:
+        return self.model.loss(batch)
+
+
 class Trainer:
+    """Fits ``model`` on ``train_data``, validating on ``val_data`` after every epoch.
+
+    ``on_epoch(epoch, metrics)`` is called after every epoch and ``on_step(epoch, step,
+    loss)`` after every optimiser step (``loss``: the step's mean over all its windows;
+    under DDP one extra scalar all-reduce per step while it is set). Both are logging hooks:
+    under DDP they run on rank 0 only. See the module docstring for DDP.
+    """
+
     def __init__(self, model: MotionModel, train_data: WindowData, val_data: WindowData, cfg: TrainConfig,
                  out_dir: str | Path, fingerprint: str, on_epoch: Callable[[int, dict], None] | None = None,
-                 progress: bool = True):
+                 progress: bool = True, on_step: Callable[[int, int, float], None] | None = None):
         self.model, self.train_data, self.val_data = model, train_data, val_data
         self.cfg, self.out = cfg.validate(), Path(out_dir)
-        self.fingerprint, self.on_epoch, self.progress = fingerprint, on_epoch, progress
+        self.fingerprint, self.on_epoch, self.on_step = fingerprint, on_epoch, on_step
         self.device = resolve_device(cfg.device, cfg.threads)
+        self.distributed = distributed.init(self.device)  # False (and nothing done) outside torchrun
+        if self.distributed:
+            self.device = distributed.device_for(self.device)
+        self.rank, self.world = distributed.rank(), distributed.world()
+        self.is_main = self.rank == 0
+        self.progress = progress and self.is_main
         self.model.to(self.device)
         self.optim = make_optimizer(model, cfg)
+        self.ddp: torch.nn.parallel.DistributedDataParallel | None = None
+        if self.distributed and self.optim is not None:  # nothing to synchronise without trainable parameters
+            self.ddp = torch.nn.parallel.DistributedDataParallel(
+                _LossForward(model), device_ids=[self.device.index] if self.device.type == "cuda" else None,
+                find_unused_parameters=bool(getattr(model, "ddp_find_unused_parameters", False)))
         self.start_epoch, self.best, self.bad_epochs = 0, math.inf, 0
         self.history: list[dict[str, float]] = []
         self.run_id: str | None = None
@@ -159,12 +231,21 @@ class Trainer:
         log.info("resumed from %s at epoch %d", last, self.start_epoch)
         return True
 
+    def _save(self, epoch: int, name: str) -> None:
+        """Write checkpoint ``name`` atomically: on rank 0 only (every rank holds the same state)."""
+        if self.is_main:
+            ckpt.save_atomic(self.state(epoch), self.out / name)
+
     # ------------------------------------------------------------------ loops
     def _set_epoch(self, epoch: int) -> None:
         if hasattr(self.model, "set_epoch"):
             self.model.set_epoch(epoch)
 
     def train_epoch(self, epoch: int) -> dict[str, float]:
+        """One epoch: ``ceil(windows / (world x batch_size))`` optimiser steps (at most
+        ``max_batches_per_epoch``); returns the ``train/*`` means over all ranks' windows."""
+        if self.distributed:
+            return self._train_epoch_ddp(epoch)
         self.model.train()
         self._set_epoch(epoch)
         total, n, terms = 0.0, 0, {}
@@ -190,11 +271,83 @@ class Trainer:
             n += batch.size
             for k, v in logs.items():
                 terms[k] = terms.get(k, 0.0) + float(v) * batch.size
+            if self.on_step:
+                self.on_step(epoch, i, float(loss.detach()))
             bar.update(1)
             bar.set_postfix(loss=f"{float(loss.detach()):.4f}")
         bar.close()
         out = {"train/loss": total / max(n, 1)}
         out.update({f"train/{k}": v / max(n, 1) for k, v in terms.items()})
+        return out
+
+    def _rank_seed(self, epoch: int) -> int:
+        """The torch seed of this rank's training draws in ``epoch`` (DDP)."""
+        return int(np.random.SeedSequence([self.cfg.seed, epoch, self.rank]).generate_state(1)[0])
+
+    def _train_epoch_ddp(self, epoch: int) -> dict[str, float]:
+        """:meth:`train_epoch` on rank ``self.rank`` of ``self.world`` (see the module docstring).
+
+        Batch ``j`` of the epoch's permutation (``batch_size`` windows, the last one shorter)
+        is rank ``j % world``'s batch of global step ``j // world``; the table of windows per
+        (step, rank) follows from the window count alone, so weighting needs no communication.
+        """
+        import torch.distributed as dist
+
+        self.model.train()
+        self._set_epoch(epoch)
+        torch.manual_seed(self._rank_seed(epoch))
+        bs, world, n_windows = self.cfg.batch_size, self.world, len(self.train_data)
+        n_steps = math.ceil(n_windows / (bs * world))
+        if self.cfg.max_batches_per_epoch:
+            n_steps = min(n_steps, self.cfg.max_batches_per_epoch)
+        first = (np.arange(n_steps)[:, None] * world + np.arange(world)[None, :]) * bs   # [steps, world]
+        sizes = np.clip(n_windows - first, 0, bs)                                          # [steps, world] windows
+        it = self.train_data.iterate(bs, shuffle=True, seed=self.cfg.seed, epoch=epoch, rank=self.rank, world=world)
+        total, n, terms = 0.0, 0, {}
+        previous: Batch | None = None
+        bar = tqdm(total=n_steps, desc=f"epoch {epoch}", disable=not self.progress, leave=False)
+        for i in range(n_steps):
+            mine, step_windows = int(sizes[i, self.rank]), int(sizes[i].sum())
+            batch = next(it) if mine > 0 else None
+            if batch is None:  # this rank's shard has run out on the last step: join the all-reduce with weight 0
+                batch = previous if previous is not None else self.train_data.batch(np.arange(min(bs, n_windows)))
+            batch = batch.to(self.device)
+            previous = batch
+            loss, logs = self.ddp(batch) if self.ddp is not None else self.model.loss(batch)
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"non-finite training loss at epoch {epoch}, batch {i} "
+                                         f"(rank {self.rank}): {logs}")
+            if self.optim is not None:
+                self.optim.zero_grad(set_to_none=True)
+                # DDP averages over ranks: this weight turns the average into the step's window mean
+                (loss * (mine * world / step_windows)).backward()
+                if self.cfg.grad_clip:
+                    torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
+                self.optim.step()
+            value = float(loss.detach())
+            if mine > 0:
+                total += value * mine
+                n += mine
+                for k, v in logs.items():
+                    terms[k] = terms.get(k, 0.0) + float(v) * mine
+            if self.on_step:
+                step = torch.tensor([value * mine], dtype=torch.float64, device=self.device)
+                dist.all_reduce(step)
+                if self.is_main:
+                    self.on_step(epoch, i, float(step) / step_windows)
+            bar.update(1)
+            bar.set_postfix(loss=f"{value:.4f}")
+        bar.close()
+        # means over all ranks' windows; the union of the log keys, in one order on every rank
+        keys: list[list[str]] = [[] for _ in range(world)]
+        dist.all_gather_object(keys, sorted(terms))
+        names = sorted(set().union(*keys))
+        sums = torch.tensor([total, n, *(terms.get(k, 0.0) for k in names)], dtype=torch.float64, device=self.device)
+        dist.all_reduce(sums)
+        sums = sums.tolist()
+        count = max(sums[1], 1)
+        out = {"train/loss": sums[0] / count}
+        out.update({f"train/{k}": v / count for k, v in zip(names, sums[2:])})
         return out
 
     @torch.no_grad()
@@ -237,9 +390,10 @@ class Trainer:
             self.history.append(metrics)
             self.best = metrics.get(self.cfg.monitor, math.inf)
             self.done = True
-            ckpt.save_atomic(self.state(0), self.out / "best.pt")
-            ckpt.save_atomic(self.state(0), self.out / "last.pt")
-            if self.on_epoch:
+            self._save(0, "best.pt")
+            self._save(0, "last.pt")
+            distributed.barrier()
+            if self.on_epoch and self.is_main:
                 self.on_epoch(0, metrics)
         for epoch in range(self.start_epoch, epochs):
             metrics = {"epoch": epoch, **self.train_epoch(epoch), **self.evaluate(self.val_data)}
@@ -248,19 +402,24 @@ class Trainer:
             improved = score < self.best - self.cfg.min_delta
             if improved:
                 self.best, self.bad_epochs = score, 0
-                ckpt.save_atomic(self.state(epoch), self.out / "best.pt")
+                self._save(epoch, "best.pt")
             else:
                 self.bad_epochs += 1
             stop = self.bad_epochs >= self.cfg.patience
             self.done = stop or epoch == epochs - 1
-            if (epoch + 1) % self.cfg.checkpoint_every == 0 or self.done:
-                ckpt.save_atomic(self.state(epoch), self.out / "last.pt")
-            if self.on_epoch:
+            # log before last.pt: a kill between the two redoes (and re-logs) this epoch on resume,
+            # rather than resuming after an epoch whose metrics never reached MLflow
+            if self.on_epoch and self.is_main:
                 self.on_epoch(epoch, metrics)
-            log.info("epoch %d: %s", epoch, ", ".join(f"{k}={v:.5f}" for k, v in metrics.items() if k != "epoch"))
-            if stop:
-                log.info("early stop at epoch %d (%s has not improved for %d epochs)", epoch,
-                         self.cfg.monitor, self.cfg.patience)
+            if (epoch + 1) % self.cfg.checkpoint_every == 0 or self.done:
+                self._save(epoch, "last.pt")
+            distributed.barrier()  # DDP: rank 0's checkpoints are on disk before any rank goes on
+            if self.is_main:
+                log.info("epoch %d: %s", epoch, ", ".join(f"{k}={v:.5f}" for k, v in metrics.items() if k != "epoch"))
+            if stop:  # the same decision on every rank: identical validation (module docstring)
+                if self.is_main:
+                    log.info("early stop at epoch %d (%s has not improved for %d epochs)", epoch,
+                             self.cfg.monitor, self.cfg.patience)
                 break
         return {"history": self.history, "best": self.best, "epochs_run": len(self.history),
                 "seconds": time.perf_counter() - t0, "config": asdict(self.cfg)}
