@@ -27,11 +27,12 @@ def main(cfg: DictConfig) -> float:
     job = job_context(resolved)
     summary = run(resolved, progress=progress(cfg), job=job)
     name = run_name(resolved)
-    if not job.sweep and is_main():  # a sweep job's summary stays in its own folder, not in the DVC metrics
-        write_json(f"{cfg.paths.reports}/metrics/train/{cfg.dataset.name}/{name}.json", summary)
     metric = cfg.get("optimized_metric") or summary["monitor"]
-    log.info("train %s on %s: %d epochs, best %s = %.5f", name, cfg.dataset.name,
-             summary["epochs_run"], metric, summary.get(metric, float("nan")))
+    if is_main():  # under torchrun: rank 0 only
+        if not job.sweep:  # a sweep job's summary stays in its own folder, not in the DVC metrics
+            write_json(f"{cfg.paths.reports}/metrics/train/{cfg.dataset.name}/{name}.json", summary)
+        log.info("train %s on %s: %d epochs, best %s = %.5f", name, cfg.dataset.name,
+                 summary["epochs_run"], metric, summary.get(metric, float("nan")))
     return float(summary.get(metric, float("nan")))
 
 
