@@ -238,10 +238,11 @@ def finish_parent(parent: Mapping[str, Any], monitor: str | None, out_dir: Path)
 
     client = MlflowClient(parent["tracking_uri"])
     runs = children(client, parent)
-    for r in runs:
-        if r.info.status == "RUNNING":
-            client.set_terminated(r.info.run_id, status="KILLED")
-    runs = children(client, parent)
+    left = [r.info.run_id for r in runs if r.info.status == "RUNNING"]
+    for run_id in left:
+        client.set_terminated(run_id, status="KILLED")
+    if left:  # read them back with their new status
+        runs = children(client, parent)
     rows = summary_rows(runs, monitor)
     out_dir.mkdir(parents=True, exist_ok=True)
     df = pd.DataFrame(rows)
