@@ -20,18 +20,28 @@ log = logging.getLogger(__name__)
 _ACTIVE = {"on": False}  # inside a run: log_metrics / log_artifact write to it
 
 
-def tracking_uri(root: str | Path) -> str:
-    """``$MLFLOW_TRACKING_URI``, else the project's ``mlflow.db``. Inside a ``dvc exp run``
-    temporary workspace (``<repo>/.dvc/tmp/exps/...``) that is the repository's own
-    ``mlflow.db``, so queued experiments land beside every other run."""
-    env = os.environ.get("MLFLOW_TRACKING_URI")
-    if env:
-        return env
+def local_store_uri(root: str | Path) -> str:
+    """The project's own store, ``sqlite:///<repo>/mlflow.db`` (absolute). Inside a ``dvc exp run``
+    temporary workspace (``<repo>/.dvc/tmp/exps/...``) that is the repository's own ``mlflow.db``,
+    so queued experiments land beside every other run."""
     root = Path(root).resolve()
     marker = f"{os.sep}.dvc{os.sep}tmp{os.sep}exps{os.sep}"
     if marker in f"{root}{os.sep}":
         root = Path(f"{root}{os.sep}".split(marker, 1)[0])
     return f"sqlite:///{root / 'mlflow.db'}"
+
+
+def tracking_uri(root: str | Path) -> str:
+    """``$MLFLOW_TRACKING_URI``, else :func:`local_store_uri`."""
+    return os.environ.get("MLFLOW_TRACKING_URI") or local_store_uri(root)
+
+
+def sqlite_artifacts(uri: str) -> Path | None:
+    """For a local SQLite store, where its artifacts go: ``mlartifacts/`` beside the database
+    (not the working directory); ``None`` for other stores."""
+    if not uri.startswith("sqlite:///"):
+        return None
+    return Path(uri[len("sqlite:///"):]).resolve().parent / "mlartifacts"
 
 
 @contextlib.contextmanager
@@ -60,8 +70,8 @@ def set_experiment(mlflow, uri: str, experiment: str):
     store and creating the experiment happen under :func:`_store_lock`."""
     with _store_lock(uri):
         exp = mlflow.get_experiment_by_name(experiment)
-        if exp is None and uri.startswith("sqlite:///"):
-            art = Path(uri[len("sqlite:///"):]).parent / "mlartifacts"
+        art = sqlite_artifacts(uri)
+        if exp is None and art is not None:
             mlflow.create_experiment(experiment, artifact_location=art.as_uri())
         return mlflow.set_experiment(experiment)
 

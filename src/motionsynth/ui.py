@@ -29,6 +29,8 @@ import urllib.request
 from pathlib import Path
 from typing import Iterator, Sequence
 
+from . import tracking
+
 LIGHT_ENV = {"MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"}
 _REMOTE_SCHEMES = ("http://", "https://", "databricks")
 
@@ -47,20 +49,16 @@ class ServerURL(str):
 
 def project_store(root: str | Path) -> str:
     """The store ``motionsynth ui`` shows by default: ``$MLFLOW_TRACKING_URI`` when it names a local
-    store (a database or ``file:`` URI), else ``sqlite:///<root>/mlflow.db`` (absolute)."""
-    env = os.environ.get("MLFLOW_TRACKING_URI", "")
-    if env and not env.startswith(_REMOTE_SCHEMES):
-        return env
-    return f"sqlite:///{Path(root).resolve() / 'mlflow.db'}"
+    store (a database or ``file:`` URI), else the project's ``mlflow.db`` (:func:`tracking.local_store_uri`)."""
+    uri = tracking.tracking_uri(root)
+    return tracking.local_store_uri(root) if uri.startswith(_REMOTE_SCHEMES) else uri
 
 
 def artifacts_destination(root: str | Path, backend_store_uri: str) -> Path:
     """Where the server keeps artifacts uploaded through it (experiments created over http):
-    ``mlartifacts/`` beside a SQLite database (as :func:`motionsynth.tracking.set_experiment` does
-    for local experiments), else ``<root>/mlartifacts``."""
-    if backend_store_uri.startswith("sqlite:///"):
-        return Path(backend_store_uri[len("sqlite:///"):]).resolve().parent / "mlartifacts"
-    return Path(root).resolve() / "mlartifacts"
+    beside a SQLite database, as for local experiments (:func:`tracking.sqlite_artifacts`),
+    else ``<root>/mlartifacts``."""
+    return tracking.sqlite_artifacts(backend_store_uri) or Path(root).resolve() / "mlartifacts"
 
 
 def free_port(host: str = "127.0.0.1") -> int:
