@@ -2,6 +2,7 @@
 achieved against a plain fp32 matmul on the same threads; plus acLSTM at the paper size.
 
 Usage: python bench/train.py [--models vae_lstm,glogen,...] [--steps 5]
+       python bench/train.py --paper     # s/step of every (model, dataset) at the paper size + profile=paper's wall time
 Prints one JSON line per figure. Real data: a few items of each dataset, prepared in a temp dir.
 """
 
@@ -55,7 +56,8 @@ def bench_model(name: str, size: str, tmp: str, steps: int, threads: int, peaks:
         batch.controls = batch.controls.repeat(reps, 1, 1)[:bs] if batch.controls is not None else None
         batch.labels = batch.labels.repeat(reps)[:bs] if batch.labels is not None else None
     torch.manual_seed(0)
-    model = cls(spec, **mcfg["sizes"][size])
+    over = (dataset_cfg(dataset)["training"].get("model_overrides") or {}).get(name, {})   # as training builds it
+    model = cls(spec, **{**mcfg["sizes"][size], **over})
     optim = make_optimizer(model, train_config({"model": mcfg, "train": {}, "seed": 0}))
     if optim is None:
         return None
@@ -69,18 +71,66 @@ def bench_model(name: str, size: str, tmp: str, steps: int, threads: int, peaks:
     return batch.size / dt
 
 
+def paper_estimate(tmp: str, steps: int, threads: int, peaks: dict) -> None:
+    """Seconds per optimiser step of every model at the paper size, on each dataset the pipeline trains
+    it on (its window family there), and the wall time of ``profile=paper`` they imply: every
+    ``train_runs`` pair's ``schedule.paper`` budget (steps, or epochs x steps per pass) x its step time."""
+    import math
+
+    import yaml
+
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    per_step: dict[tuple[str, str], float] = {}
+    total, lines = 0.0, []
+    for key, r in params["train_runs"].items():
+        m, ds = r["model"], r["dataset"]
+        mcfg = OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "model" / f"{m}.yaml"), resolve=True)
+        sched = dict((mcfg.get("schedule") or {}).get("paper") or {})
+        sched.update((sched.pop("datasets", None) or {}).get(ds, {}))
+        budget = sched.get("steps", (mcfg.get("train") or {}).get("steps"))
+        if budget == 0 or m in ("zero_velocity", "mean_pose"):
+            continue
+        if (m, ds) not in per_step:
+            rate = bench_model(m, "paper", tmp, steps, threads, peaks, dataset=ds, label=f"{m}_paper@{ds}")
+            bs = int(sched.get("batch_size", (mcfg.get("train") or {}).get("batch_size", 32)))
+            per_step[(m, ds)] = bs / rate if rate else 0.0
+        if budget is None:                    # epochs x steps per pass over the dataset's train windows
+            n = _train_windows(ds, mcfg)
+            bs = int(sched.get("batch_size", (mcfg.get("train") or {}).get("batch_size", 32)))
+            budget = int(sched.get("epochs", 20)) * math.ceil(n / bs)
+        sec = budget * per_step[(m, ds)]
+        total += sec
+        lines.append({"stage": key, "steps": int(budget), "step_s": round(per_step[(m, ds)], 4), "hours": round(sec / 3600, 2)})
+    emit("paper_profile_estimate", total / 3600, "hours", None, threads=threads, stages=lines,
+         note="sum over train_runs of schedule.paper steps x measured seconds per step at the paper size on this "
+              "machine; validation and start-up not included")
+
+
+def _train_windows(ds: str, mcfg: dict) -> int:
+    from motionsynth.training.data import open_split
+
+    dcfg = dataset_cfg(ds)
+    family = model_class(mcfg["_target_"]).family or dcfg["training"]["family"]
+    return len(open_split(ROOT / "data/processed", ROOT / "data/splits", ds, dcfg["training"], family, "train"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--models", default=",".join(sorted(p.stem for p in (ROOT / "conf/model").glob("*.yaml"))))
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--skip-paper-aclstm", action="store_true")
+    ap.add_argument("--paper", action="store_true", help="seconds per step of every model at the paper size, and "
+                    "the estimated wall time of profile=paper (needs the prepared data of `make run`)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     peaks = {"matmul_mkl": matmul_gflops(args.threads), "matmul_onednn": matmul_gflops(args.threads, onednn=True)}
     for k, v in peaks.items():
         emit(f"{k}_fp32_4096", v, "GFLOP/s", None, threads=args.threads)
     with tempfile.TemporaryDirectory() as tmp:
+        if args.paper:
+            paper_estimate(tmp, args.steps, args.threads, peaks)
+            return
         for name in args.models.split(","):
             bench_model(name, "default", tmp, args.steps, args.threads, peaks)
         if not args.skip_paper_aclstm:

@@ -10,13 +10,16 @@ models/sweeps/ (motionsynth.sweeps); it returns `optimized_metric` (else `train.
 the sweeper (hparams_search=...).
 """
 
+import shutil
+from pathlib import Path
+
 import hydra
 from _common import log, progress, rank_zero_hydra_argv, write_json
 from omegaconf import DictConfig, OmegaConf
 
 from motionsynth.sweeps import job_context
 from motionsynth.training.distributed import is_main
-from motionsynth.training.run import run, run_name
+from motionsynth.training.run import CURVE, run, run_name
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
@@ -29,8 +32,11 @@ def main(cfg: DictConfig) -> float:
     name = run_name(resolved)
     metric = cfg.get("optimized_metric") or summary["monitor"]
     if is_main():  # under torchrun: rank 0 only
-        if not job.sweep:  # a sweep job's summary stays in its own folder, not in the DVC metrics
+        if not job.sweep:  # a sweep job's summary stays in its own folder, not in the DVC metrics / plots
             write_json(f"{cfg.paths.reports}/metrics/train/{cfg.dataset.name}/{name}.json", summary)
+            curve = Path(cfg.paths.reports) / "plots" / "train" / cfg.dataset.name / f"{name}.csv"
+            curve.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(Path(cfg.paths.models) / cfg.dataset.name / name / CURVE, curve)
         log.info("train %s on %s: %d epochs, best %s = %.5f", name, cfg.dataset.name,
                  summary["epochs_run"], metric, summary.get(metric, float("nan")))
     return float(summary.get(metric, float("nan")))

@@ -90,7 +90,7 @@ def compose_cfg(root: Path, dataset: str, *overrides: str) -> dict:
 def build_eval_root(root: Path, dataset: str, runs: dict[str, tuple[str, str]], max_items: int = 16,
                     epochs: int = 1, batches: int = 2) -> dict[str, str]:
     """A project root for evaluation tests: ``max_items`` real items of ``dataset`` ingested, prepared
-    and split into ``root/data``, and each run ``name -> (model, variant)`` trained for ``epochs`` x
+    and split into ``root/data``, and each run ``name -> (model, variant)`` trained for ``epochs`` rounds x
     ``batches`` at the smoke sizes into ``root/models/<dataset>/<name>``. Returns ``{name: model}``
     (what ``params.yaml: train_runs`` gives the evaluate stage)."""
     from motionsynth.data.ingest import ingest
@@ -106,5 +106,5 @@ def build_eval_root(root: Path, dataset: str, runs: dict[str, tuple[str, str]], 
     for name, (model, variant) in runs.items():
         if not (root / "models" / dataset / name / "best.pt").exists():
             run(compose_cfg(root, dataset, f"model={model}", f"variant={variant}", f"run_name={name}",
-                            f"train.epochs={epochs}", f"train.max_batches_per_epoch={batches}"), progress=False)
+                            f"train.steps={epochs * batches}", f"train.eval_every={batches}"), progress=False)
     return {name: model for name, (model, _) in runs.items()}

@@ -46,8 +46,8 @@ def root(tmp_path_factory) -> Path:
     for ds, model in (("bandai2_locomotion", "vae_lstm"), ("bandai1", "glogen"), ("bandai1", "locgen")):
         with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
             c = compose("config", overrides=[f"paths.root={r}", f"dataset={ds}", f"model={model}", "profile=smoke",
-                                             "tracking.enabled=false", "train.threads=1", "train.epochs=1",
-                                             "train.max_batches_per_epoch=2", "train.val_windows=4"])
+                                             "tracking.enabled=false", "train.threads=1", "train.steps=2",
+                                             "train.eval_every=2", "train.val_windows=4"])
         run(OmegaConf.to_container(c, resolve=True), progress=False)
     return r
 

@@ -136,9 +136,9 @@ def test_zero_velocity_repeats_the_last_seed_pose(real):
     assert torch.equal(m.generate(batch.pose[:, :3], length=7, num_samples=2)[1::2], m.generate(batch.pose[:, :3], length=7))
 
 
-def test_zero_velocity_trains_for_zero_epochs():
+def test_zero_velocity_trains_for_zero_steps():
     cfg = OmegaConf.load(REPO / "conf" / "model" / "zero_velocity.yaml")
-    assert cfg.train.epochs == 0
+    assert cfg.train.steps == 0
 
 
 # ----------------------------------------------------------------------------- schedules
@@ -172,12 +172,12 @@ def test_scheduled_sampling_step_counter():
 
 
 def test_noise_curriculum_levels():
-    m = ERD(LOCO, hidden_size=8, encoder_sizes=[8], decoder_hidden=4, input_noise=[0.0, 0.1, 0.3], noise_every=2)
+    m = ERD(LOCO, hidden_size=8, encoder_sizes=[8], decoder_hidden=4, input_noise=[0.0, 0.1, 0.3])
     stds = []
-    for e in range(8):
-        m.set_epoch(e)
+    for step in range(0, 12, 2):          # a budget of 12 steps: each level for a third of it
+        m.set_progress(step, 12)
         stds.append(m.noise_std())
-    assert stds == [0.0, 0.0, 0.1, 0.1, 0.3, 0.3, 0.3, 0.3]
+    assert stds == [0.0, 0.0, 0.1, 0.1, 0.3, 0.3]
 
 
 def test_aclstm_mask_alternates():

@@ -43,7 +43,7 @@ def test_shapes_of_loss_generate_predict(real):
     m = model(spec)
     loss, logs = m.loss(batch)
     assert loss.dim() == 0 and torch.isfinite(loss)
-    assert set(logs) == {"nll", "kl", "mse", "kl_per_step", "l1"}
+    assert set(logs) == {"nll", "kl", "mse", "kl_per_window", "kl_weight", "l1"}
     loss.backward()
     assert all(p.grad is not None for p in m.parameters())
     m.eval()
@@ -140,6 +140,61 @@ def test_predict_protocols(real):
         assert m.seed_frames == s and m.predict(batch).shape == batch.pose.shape
 
 
+def test_training_unrolls_the_cell_as_generation_does(real):
+    """train_mode rollout: the reconstruction is the decoder of the eq. 9 test-case roll-out from z_1 ~
+    q(z_1 | first 4 frames); with z_1 = its mean the training output equals generate()'s from 4 frames."""
+    batch, spec = real
+    m = model(spec, dropout=0.0).eval()
+    mu, _ = m.first_posterior(m.flat(batch.pose))
+    with torch.no_grad():
+        train_path = m.decode(m.cell.unroll(mu, m.encode_controls(batch.controls)))
+        gen_path = m.decode(m.cell.rollout(mu, m.encode_controls(batch.controls)))
+    torch.testing.assert_close(train_path, gen_path, atol=1e-5, rtol=1e-5)
+
+
+def test_kl_warm_up_and_free_bits(real):
+    batch, spec = real
+    m = model(spec, kl_warmup=0.5, free_bits=2.0).train()
+    m.set_progress(0, 100)
+    assert m.kl_weight() == 0.0
+    m.set_progress(25, 100)
+    assert m.kl_weight() == pytest.approx(0.5)
+    m.set_progress(80, 100)
+    assert m.kl_weight() == 1.0
+    assert m.eval().kl_weight() == 1.0                  # validation: the full ELBO
+    torch.manual_seed(0)
+    loss_fb, logs = m.train().loss(batch)
+    torch.manual_seed(0)
+    loss_plain, _ = model(spec, kl_warmup=0.5, free_bits=0.0).train().loss(batch)
+    assert loss_fb.item() >= loss_plain.item()          # below the floor every dimension costs free_bits
+
+
+def test_a_few_seconds_of_training_give_a_latent_that_changes_the_motion(real):
+    """The issue's check: different latents -> different characters, and the posterior differs from the prior."""
+    batch, spec = real
+    torch.manual_seed(0)
+    m = model(spec, dropout=0.0)
+    opt = torch.optim.Adam(m.parameters(), lr=3e-3)
+    for step in range(60):
+        m.set_progress(step, 60)
+        loss, logs = m.loss(batch)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert logs["kl_per_window"] > 0.5                   # the posterior moved away from the prior
+    m.eval()
+    torch.manual_seed(1)
+    samples = m.generate(None, batch.controls[:2], num_samples=4)      # [8, 240, J, 3]: 4 latents per path
+    per_path = samples.reshape(2, 4, *samples.shape[1:])
+    spread = per_path.std(dim=1)[:, 4:].mean().item()   # across the latents, after the first 4 frames
+    assert spread > 0.05, spread                          # normalised units: a visible difference
+    torch.manual_seed(1)
+    post = m.generate(batch.pose[:, :4], batch.controls)
+    torch.manual_seed(1)
+    prior = m.generate(None, batch.controls)
+    assert (post - prior).abs().mean().item() > 0.05
+
+
 def test_overfits_one_real_batch(real):
     batch, spec = real
     m = model(spec, dropout=0.0, l1=0.0)
@@ -179,6 +234,9 @@ def test_deterministic_given_the_seed(real):
     ({"recon_var": 0.0}, "recon_var"),
     ({"seed_frames": 2}, "seed_frames"),
     ({"seed_frames": 240}, "seed_frames"),
+    ({"train_mode": "other"}, "train_mode"),
+    ({"kl_warmup": 1.5}, "kl_warmup"),
+    ({"free_bits": -1.0}, "free_bits"),
 ])
 def test_invalid_hyperparameters_raise(real, over, msg):
     _, spec = real

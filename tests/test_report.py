@@ -20,8 +20,8 @@ import pytest
 from conftest import REPO
 
 from motionsynth.evaluation.context import EvalContext, write
-from motionsynth.evaluation.report import (FAILS, HOLDS, NA, evaluate_claim, read_published, read_results,
-                                           write_report)
+from motionsynth.evaluation.report import (FAILS, HOLDS, NA, NOISE, evaluate_claim, read_published,
+                                           read_results, write_report)
 
 PUB = REPO / "reports" / "published_results.csv"
 DATASETS = ["bandai1", "bandai2_locomotion", "cmu_aclstm", "h36m"]
@@ -189,6 +189,27 @@ def test_verdicts_are_computed_from_the_numbers(tmp_path):
     assert "| VAE-LSTM's motion prediction error grows less than the baselines' from frame 70 to frame 210 | holds | does not hold |" in readme
     assert res["metrics"]["claim/vae_lstm_long_term_growth/ours"] == 0.0
     assert res["metrics"]["claim/vae_lstm_long_term_growth/paper"] == 1.0
+
+
+def test_a_gap_within_twice_the_larger_std_is_within_noise(tmp_path):
+    """Rows with a std over training seeds: "holds" / "does not hold" only when the gap exceeds twice the
+    larger std, else "within noise"."""
+    pub = read_published(PUB)
+    low = claim("vae_lstm_long_term_error")                       # VAE-LSTM below every baseline at frame 210
+    cells = published("habibie2017_vae_lstm", "Table 1", "ERD")
+    cell210 = next(c for c in cells if c["column"] == "frame210")
+    for tag, (vae, erd, erd_std) in {"clear": (1.0, 1.5, 0.1), "noise": (1.0, 1.15, 0.1),
+                                     "worse_noise": (1.15, 1.0, 0.1), "fails": (1.5, 1.0, 0.1)}.items():
+        ctx = context(tmp_path / tag, "bandai2_locomotion")
+        ctx.add_seeds([vae * 0.99, vae, vae * 1.01], **{**cell210, "method": "VAE-LSTM"}, n=64, run="vae_lstm")
+        ctx.add_seeds([erd - erd_std, erd, erd + erd_std], **cell210, n=64, run="erd")
+        write(ctx)
+        ours, _ = read_results(tmp_path / tag / "reports", DATASETS)
+        r = evaluate_claim(low, ours, pub)
+        want = {"clear": HOLDS, "noise": NOISE, "worse_noise": NOISE, "fails": FAILS}[tag]
+        assert r.verdict("ours") == want, (tag, r.outcomes[0].detail)
+        if want == NOISE:
+            assert "within noise" in r.outcomes[0].detail
 
 
 def test_mmd_calibration_claim_uses_the_reference_rows(tmp_path):

@@ -93,9 +93,9 @@ def test_joblib_sweep_two_at_a_time_loses_nothing(root):
     assert len(summary) == 1 + 4
     best = dict(con.execute("select key, value from latest_metrics where run_uuid = ?", (parent,)).fetchall())
     kid_best = [v for (v,) in con.execute(
-        f"select value from latest_metrics where key = 'best/pred_mse' and run_uuid in ({','.join('?' * 4)})",
+        f"select value from latest_metrics where key = 'best/rel_zv' and run_uuid in ({','.join('?' * 4)})",
         list(kids))]
-    assert best["best/pred_mse"] == pytest.approx(min(kid_best)) and best["children"] == 4
+    assert best["best/rel_zv"] == pytest.approx(min(kid_best)) and best["children"] == 4
     # the concurrent sweep: its own parent with its 2 children
     (other_parent,) = parents(con, "sweep:train %model=zero_velocity,lstm3lr%")
     assert len(children(con, other_parent)) == 2
@@ -154,7 +154,7 @@ def test_optuna_preset_in_memory_study(root):
     kids = children(con, parent)
     assert len(kids) == 2
     best = dict(con.execute("select key, value from latest_metrics where run_uuid = ?", (parent,)).fetchall())
-    assert best["best/pred_mse"] == pytest.approx(float(results.split("best_value:")[1].split()[0]))
+    assert best["best/rel_zv"] == pytest.approx(float(results.split("best_value:")[1].split()[0]))
     assert "Study name: glogen_h36m" in out and "Storage: None" in out
 
 

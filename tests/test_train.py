@@ -57,7 +57,7 @@ def test_rerun_is_bitwise_identical(root, tmp_path):
 
 
 def test_kill_9_then_resume_equals_uninterrupted(root, tmp_path):
-    args = ["model=vae_lstm", "train.epochs=12", "train.max_batches_per_epoch=6", "train.patience=100"]
+    args = ["model=vae_lstm", "train.steps=72", "train.eval_every=6", "train.patience=100"]
     run(config(root, *args, f"paths.models={tmp_path}/ref"), progress=False)
 
     cmd = [sys.executable, str(REPO / "pipelines/train.py"), f"paths.root={root}", f"dataset={DS}",
@@ -83,7 +83,7 @@ def test_kill_9_then_resume_equals_uninterrupted(root, tmp_path):
     r = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
     log = r.stdout + r.stderr
-    assert "resumed from" in log and f"at epoch {killed_at + 1}" in log
+    assert "resumed from" in log and f"at round {killed_at + 1}" in log
     ref, res = weights(tmp_path / "ref" / DS / "vae_lstm/last.pt"), weights(last)
     assert all(torch.equal(ref[k], res[k]) for k in ref)
     assert load(last)["history"] == load(tmp_path / "ref" / DS / "vae_lstm/last.pt")["history"]

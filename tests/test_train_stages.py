@@ -24,7 +24,9 @@ def test_train_run_entry_matches_its_configs(key):
     model = yaml.safe_load((REPO / "conf" / "model" / f"{e['model']}.yaml").read_text())
     variant = yaml.safe_load((REPO / "conf" / "variant" / f"{e['variant']}.yaml").read_text())
     # the stage passes run_name explicitly; it must equal what a plain command line would name the run
-    assert run_name({"run_name": None, "variant_name": variant["variant_name"], "model": model}) == e["name"]
+    # (a training-seed replica: that name + "-seed<k>", the evaluation's replica convention)
+    plain = run_name({"run_name": None, "variant_name": variant["variant_name"], "model": model})
+    assert e["name"] == (plain if e["seed"] == 0 else f"{plain}-seed{e['seed']}")
     assert f"models.{e['src']}." in model["_target_"]
 
 
@@ -42,5 +44,11 @@ def test_every_model_is_trained_on_the_datasets_the_issue_names():
     assert {("bandai2_locomotion", m) for m in ["vae_lstm", *baselines]} <= pairs
     for ds in ("h36m", "cmu_aclstm", "bandai1"):
         assert {(ds, m) for m in ["glogen", *baselines]} <= pairs
+    for ds in ("h36m", "cmu_aclstm", "bandai1", "bandai2_locomotion"):       # the mean-pose reference row
+        assert (ds, "mean_pose") in pairs
+    seeds = {(e["dataset"], e["model"]): sorted(x["seed"] for x in RUNS.values()
+                                              if (x["dataset"], x["model"]) == (e["dataset"], e["model"]))
+             for e in RUNS.values()}
+    assert seeds[("cmu_aclstm", "glogen")] == seeds[("cmu_aclstm", "seq2seq")] == [0, 1, 2]
     given = {e["model"] for e in RUNS.values() if e["variant"] == "controls_given"}
     assert given == {"erd", "lstm3lr", "seq2seq", "aclstm", "scheduled_sampling"}

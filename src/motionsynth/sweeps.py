@@ -97,6 +97,8 @@ def job_context(cfg: Mapping[str, Any]) -> Job:
     task = list(hc.overrides.task)
     keys = key_overrides(task)
     if hc.mode != RunMode.MULTIRUN:
+        if any(o.startswith("run_name=") for o in task):  # a DVC stage: its run name says the seed replica
+            keys = key_overrides(task, _NOT_KEY + ("seed",))
         return Job(overrides=keys)
     ds, name = cfg["dataset"]["name"], _run_name(cfg)
     parent = read_parent(Path(hc.sweep.dir)) or {}
@@ -207,7 +209,10 @@ class MLflowSweepCallback(_HydraCallback):
             return
         from omegaconf import OmegaConf
 
-        monitor = OmegaConf.select(config, "optimized_metric") or OmegaConf.select(config, "train.monitor")
+        from .training.trainer import TrainConfig
+
+        monitor = (OmegaConf.select(config, "optimized_metric") or OmegaConf.select(config, "train.monitor")
+                   or OmegaConf.select(config, "model.train.monitor") or TrainConfig.monitor)
         finish_parent(self.parent, str(monitor) if monitor else None, Path(str(config.hydra.sweep.dir)))
 
 

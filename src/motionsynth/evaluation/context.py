@@ -55,7 +55,9 @@ class Row:
 
 
 COLUMNS = [f.name for f in fields(Row)]
-NOT_SUITES = ("__init__", "context", "report")  # modules of this package that are not suites
+#: a training-seed replica's run name: ``<base run>-seed<k>``
+REPLICA = re.compile(r"(?P<base>.+)-seed(?P<seed>\d+)")
+NOT_SUITES = ("__init__", "context", "report", "training")  # modules of this package that are not suites
 
 
 def slug(text: str) -> str:
@@ -99,6 +101,8 @@ class EvalContext:
         for run, m in self.runs.items():
             if model is not None and m != model:
                 continue
+            if REPLICA.fullmatch(run):           # training-seed replicas: through replicas(), never alone
+                continue
             v = run[len(m) + 1:] if run.startswith(m + "-") else None
             if variant != "any" and v != variant:
                 continue
@@ -107,6 +111,16 @@ class EvalContext:
             else:
                 log.warning("%s: run %s is not trained (no %s); left out", self.name, run, self.run_dir(run) / "best.pt")
         return out
+
+    def replicas(self, run: str) -> list[str]:
+        """The trained training-seed replicas of ``run``: the runs ``<run>-seed<k>`` (the same model and
+        config trained with ``seed=k``; ``conf/pipeline/default.yaml: train_runs``), by seed."""
+        found = []
+        for r in self.runs:
+            m = REPLICA.fullmatch(r)
+            if m and m["base"] == run and (self.run_dir(r) / "best.pt").exists():
+                found.append((int(m["seed"]), r))
+        return [r for _, r in sorted(found)]
 
     def model(self, run: str):
         """``(model, train_windows)`` of a trained run, loaded once, in eval mode on the context's device."""

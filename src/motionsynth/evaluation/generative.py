@@ -16,7 +16,13 @@ Rows, per dataset (``conf/dataset/<ds>.yaml: evaluate.generative`` holds the opt
 
 Metrics: ``FID``, ``Recognition accuracy``, ``Diversity``, ``Multimodality`` (column ``value``,
 key ``generative/<metric>``); on 3-D data also ``Foot skating ratio`` and ``Bone length error``
-(columns ``abs (m)`` and ``relative``).
+(columns ``abs (m)`` and ``relative``); and ``Sample spread`` for every method (key
+``generative/sample_spread``): for each conditioning window of half ``A``, ``spread_samples`` (10)
+draws of the method's own protocol (VAE-LSTM: prior samples for the same control path); per frame
+and joint the standard deviation across the draws of the joint's position relative to the root
+joint (``sqrt`` of the summed per-coordinate variances), averaged over joints, over frames
+``spread_from_frame`` (5) .. ``T`` and over windows; metres on 3-D data, pixels on 2-D
+(:func:`sample_spread`). A deterministic method scores exactly 0 (not drawn: its draws are equal).
 
 The classifier and its feature space
 ------------------------------------
@@ -151,6 +157,7 @@ PAPER, TABLE = "beyond_papers", "Generative metrics"
 GROUP = "Generative metrics"
 CLASSIFIER_ROW, REAL_ROW, NOISE_ROW = "Real test data (classifier)", "Real test data", "Gaussian noise"
 METRICS = ("FID", "Recognition accuracy", "Diversity", "Multimodality")
+SPREAD = "Sample spread"
 
 #: option defaults (``conf/dataset/<ds>.yaml: evaluate.generative`` overrides any of them)
 DEFAULTS: dict[str, Any] = {
@@ -165,6 +172,8 @@ DEFAULTS: dict[str, Any] = {
     "cache_dir": None,           # None: <paths.models>/_classifiers/<ds> (the evaluate stage's output)
     "physical": True,            # foot skating / bone lengths on 3-D data
     "threads": 1,                # torch threads of the whole suite; None: eval.threads (module docstring)
+    "spread_samples": 10,        # sample spread: draws per conditioning window
+    "spread_from_frame": 5,      # sample spread: first (1-based) frame averaged over
 }
 
 
@@ -179,7 +188,7 @@ def _options(ctx: EvalContext) -> dict[str, Any]:
         raise ValueError(f"conf/dataset/{ctx.name}.yaml: evaluate.generative has unknown option(s) {unknown}; "
                          f"known: {sorted(DEFAULTS)}")
     o = {**DEFAULTS, **given}
-    for k in ("frame_step", "epochs", "batch_size", "val_windows"):
+    for k in ("frame_step", "epochs", "batch_size", "val_windows", "spread_samples", "spread_from_frame"):
         if isinstance(o[k], bool) or not isinstance(o[k], int) or o[k] < 1:
             raise ValueError(f"evaluate.generative.{k} must be an integer >= 1, got {o[k]!r}")
     if o["threads"] is not None and (isinstance(o["threads"], bool) or not isinstance(o["threads"], int)
@@ -472,6 +481,18 @@ def methods(ctx: EvalContext, data, T: int) -> list[Method]:
     return out
 
 
+def sample_spread(positions: np.ndarray, root_index: int | None, start: int) -> float:
+    """Sample spread of ``positions`` ``[S, N, T, J, D]`` (``S`` samples for each of ``N`` conditioning
+    windows, physical units): each frame's joints relative to its root joint ``root_index``; per
+    window, frame and joint (``root_index`` None: poses already centred, e.g. the 2-D benchmark's
+    hip-centred joints) the standard deviation across the ``S`` samples of that ``D``-vector
+    (``sqrt`` of the summed per-coordinate variances: a distance in metres, or pixels); then the mean
+    over joints, over frames ``start..T-1`` (0-based) and over windows."""
+    x = positions if root_index is None else positions - positions[..., root_index:root_index + 1, :]
+    sd = np.sqrt(x.var(axis=0).sum(-1))                                           # [N, T, J]
+    return float(sd[:, start:].mean())
+
+
 def _is_stochastic(ctx: EvalContext, m: Method, batch) -> bool:
     """Whether two seeds give different output on the first 4 windows."""
     from ..models.base import Batch
@@ -628,6 +649,14 @@ def _run(ctx: EvalContext, o: dict[str, Any]) -> None:
                         f"root-frame ratio measures locomotion, not skating)")
         add_physical(REAL_ROW, [gt], "reference", "real test windows (half A)", gt_note)
 
+    # ---- sample spread: root joint and units
+    tr = ctx.dataset_cfg["training"]
+    names = json.loads((ctx.paths["processed"] / ctx.name / tr["representation"] / "skeleton.json").read_text())["names"]
+    root_name = (ctx.dataset_cfg.get("skeleton") or {}).get("root")
+    root_j = names.index(root_name) if root_name in names else None
+    units = "metres" if test.rep.get("space") == "3d" else "pixels"
+    spread_root = ctx.raw(test, ia)["root"] if test.rep.get("space") != "3d" else None
+
     # ---- the models
     timings = {}
     for m in methods(ctx, test, T):
@@ -655,6 +684,20 @@ def _run(ctx: EvalContext, o: dict[str, Any]) -> None:
         sto = f"stochastic: mean +- std over seeds {list(seeds)}; " if stochastic else ""
         kind = ctx.kind(m.run) if m.run in ctx.runs else "model"
         add_row(m.name, per, kind, m.condition, det + sto + count_note, m.run)
+        spread, spread_note = 0.0, "deterministic: every draw is the same motion"
+        if stochastic:
+            draws = []
+            for i in range(o["spread_samples"]):
+                ctx.torch_seed(seed0 + i)
+                draws.append(ctx.physical(test, m.fn(batch_a, seed0 + i).z, spread_root))
+            spread = sample_spread(np.stack(draws), root_j, o["spread_from_frame"] - 1)
+            spread_note = (f"{o['spread_samples']} draws (seeds {seed0}..{seed0 + o['spread_samples'] - 1}) per "
+                           f"window of half A ({len(ia)} windows, the same conditioning: {m.condition})")
+        ctx.add(paper=PAPER, table=TABLE, compare_to=f"{ctx.name} (ours)", metric=GROUP, column=SPREAD,
+                method=m.name, condition=m.condition, value=spread, n=len(ia), kind=kind, run=m.run,
+                key="generative/sample_spread",
+                note=f"{spread_note}; std across draws of the root-relative joint positions, mean over joints and "
+                     f"frames {o['spread_from_frame']}..{T} ({units})")
         if phys:
             pnote = (det + sto + "generated frames only (from the last seed frame), metres; "
                      + ("world positions from the model's own controls (integrated)" if "Foot skating ratio|ratio"

@@ -74,7 +74,7 @@ from __future__ import annotations
 import json
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
@@ -148,6 +148,9 @@ class Method:
     kind: str                      # model | reference
     fn: Callable[[Batch, int], torch.Tensor]
     sample_key: str = ""           # key in the animation samples (default: label)
+    #: the same method trained with other seeds (``<run>-seed<k>`` runs): ``(run, fn)`` each; a row then
+    #: reports the mean +- std over the training seeds (this one, seed 0, first)
+    replicas: list = field(default_factory=list)
 
 
 def _check_every(run: str, model: Any, every: int) -> None:
@@ -188,7 +191,8 @@ def methods(ctx: EvalContext, every: int, default_t_in: int = 5) -> tuple[list[M
     GloGen's ``t_in`` seed poses fix ``S = (t_in - 1) * every + 1`` (``default_t_in`` when no GloGen
     run is trained). With GloGen: ``GloGen`` (+ LocGen when trained: the GlocalNet chain) and
     ``GloGen + interpolation``; LocGen alone is no roll-out and is used only inside the chain.
-    ``zero_velocity`` is a ``reference``; VAE-LSTM-style control-driven models are left out."""
+    Trivial predictors (zero-velocity, the mean pose) are ``reference`` rows; VAE-LSTM-style
+    control-driven models are left out."""
     runs = ctx.available(variant=None)
     glogen_runs = [r for r in runs if ctx.runs[r] == "glogen"]
     locgen_runs = [r for r in runs if ctx.runs[r] == "locgen"]
@@ -201,12 +205,15 @@ def methods(ctx: EvalContext, every: int, default_t_in: int = 5) -> tuple[list[M
     S = seed_length(glogen.t if glogen is not None else int(default_t_in), every)
     out: list[Method] = []
     if glogen is not None:
+        reps = [(r, ctx.model(r)[0]) for r in ctx.replicas(glogen_runs[0])]
         if locgen is not None:
             out.append(Method(ctx.label("glogen"), f"{glogen_runs[0]}+{locgen_runs[0]}", "model",
-                              _glocal(glogen, locgen, every), GLOCALNET))
+                              _glocal(glogen, locgen, every), GLOCALNET,
+                              [(f"{r}+{locgen_runs[0]}", _glocal(g, locgen, every)) for r, g in reps]))
         else:
             log.warning("%s: no trained LocGen run: the GlocalNet chain (GloGen + LocGen) is left out", ctx.name)
-        out.append(Method(GLOGEN_INTERP, glogen_runs[0], "model", _glocal(glogen, None, every)))
+        out.append(Method(GLOGEN_INTERP, glogen_runs[0], "model", _glocal(glogen, None, every),
+                          replicas=[(r, _glocal(g, None, every)) for r, g in reps]))
     for run in runs:
         name = ctx.runs[run]
         if name in ("glogen", "locgen"):
@@ -218,8 +225,8 @@ def methods(ctx: EvalContext, every: int, default_t_in: int = 5) -> tuple[list[M
         if name == "vae_lstm":
             log.warning("%s: run %s (control-driven VAE-LSTM) has no seeded roll-out here; left out", ctx.name, run)
             continue
-        kind = "reference" if name == "zero_velocity" else "model"
-        out.append(Method(ctx.label(name), run, kind, _seeded(model, S)))
+        out.append(Method(ctx.label(name), run, ctx.kind(run), _seeded(model, S),
+                          replicas=[(r, _seeded(ctx.model(r)[0], S)) for r in ctx.replicas(run)]))
     return out, S
 
 
@@ -302,31 +309,42 @@ def run(ctx: EvalContext) -> None:
                   f"{len(sk.names)} joints, dataset units; the paper: 120 fps, world-oriented")
     kw = dict(paper=PAPER, table="Table 4", metric=METRIC, seeds=1, protocol="test split")
 
-    def add_rows(label: str, run: str, kind: str, values: np.ndarray, note: str, condition: str = cond) -> None:
+    def add_rows(label: str, run: str, kind: str, values: np.ndarray | list[np.ndarray], note: str,
+                 condition: str = cond) -> None:
+        """``values`` ``[B, H]``, or one such array per training seed (mean +- std over the seeds)."""
+        per_seed = values if isinstance(values, list) else [values]
         for c in sorted(names):
             m = labels == c
             if not m.any():
                 continue
-            v = values[m].mean(axis=0)
+            v = np.stack([x[m].mean(axis=0) for x in per_seed])                        # [seeds, H]
             cls = names[c]
-            for h, x in zip(horizons, v):
-                ctx.add(compare_to=compare.get(cls, f"CMU {cls} (ours only)"), column=f"{h}ms", method=label,
-                        condition=condition, value=float(x), n=int(m.sum()), key=f"euclid_{slug(cls)}/{h}ms",
-                        run=run, kind=kind, note=note, **kw)
-            ctx.curve(f"euclid_vs_horizon_{slug(cls)}", label, horizons, v)
+            for j, h in enumerate(horizons):
+                row = dict(compare_to=compare.get(cls, f"CMU {cls} (ours only)"), column=f"{h}ms", method=label,
+                           condition=condition, n=int(m.sum()), key=f"euclid_{slug(cls)}/{h}ms", run=run,
+                           kind=kind, note=note, **kw)
+                if len(per_seed) > 1:
+                    ctx.add_seeds(v[:, j], **{k: x for k, x in row.items() if k != "seeds"})
+                else:
+                    ctx.add(value=float(v[0, j]), **row)
+            ctx.curve(f"euclid_vs_horizon_{slug(cls)}", label, horizons, v.mean(axis=0))
 
     score = dict(root_index=sk.root_index, seed_frames=S, frame_mapping=mapping)
     for meth in meths:
-        pred = rollout(ctx, data, meth, batch, L)
-        values = euclidean_per_frame_values(pred, gt, fps, horizons, **score)          # [B, H]
+        values = [euclidean_per_frame_values(rollout(ctx, data, Method(meth.label, r, meth.kind, fn), batch, L),
+                                             gt, fps, horizons, **score)                # [B, H] per training seed
+                  for r, fn in [(meth.run, meth.fn), *meth.replicas]]
         note = f"deterministic; {note_space}"
+        if meth.replicas:
+            note = (f"mean +- std over {len(values)} training seeds (runs {meth.run}, "
+                    f"{', '.join(r for r, _ in meth.replicas)}); each deterministic; {note_space}")
         if meth.sample_key == GLOCALNET:
             note = (f"GlocalNet chain: GloGen sparse roll-out (every {every}) densified by LocGen, set beside the "
                     "paper's 'Our Method (GloGen)' (whose Table-4 training setting the paper does not give); "
                     + note)
         elif meth.label == GLOGEN_INTERP:
             note = "GloGen sparse roll-out densified by linear interpolation (eq. 3), beyond the paper; " + note
-        add_rows(meth.label, meth.run, meth.kind, values, note)
+        add_rows(meth.label, meth.run, meth.kind, values if meth.replicas else values[0], note)
 
     # calibration: the frozen last seed pose in acLSTM's world-oriented root-relative frame
     world = ctx.global_positions(raw["pose"][:, :L], raw["root"][:, :L])

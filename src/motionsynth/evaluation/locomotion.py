@@ -50,6 +50,9 @@ ordering of methods and the growth over frames are).
   - *Zero-velocity* (``kind="reference"``): repeats the last of the 60 seed poses; it
     predicts no controls, so its root **stands still** at the ground-truth root (position
     and heading) of the last seed frame. "60 initial frames; no control".
+  - *Mean pose* (``kind="reference"``): the train split's mean pose after the 60 seed frames
+    (:mod:`motionsynth.models.mean_pose`), its root held as zero-velocity's: the error of a
+    model that has collapsed to the mean. Table 2: after the 4th frame.
 
 * **Table 2, "pose prediction error (root-relative)"**: every model is given the ground-truth
   controls; the error ignores translation and rotation: our prepared poses are already
@@ -89,7 +92,9 @@ from ..data.controls import integrate_controls, to_global
 from ..data.types import Skeleton
 from ..metrics.errors import REDUCTIONS, VAE_LSTM_FRAMES, prediction_error_values
 from ..models.base import one_thread
+from ..models.mean_pose import MeanPose
 from ..models.recurrent import RecurrentBaseline
+from ..models.zero_velocity import ZeroVelocity
 from .context import EvalContext
 
 log = logging.getLogger(__name__)
@@ -196,6 +201,13 @@ def _options(ctx: EvalContext) -> dict[str, Any]:
     if not opts["frames"] or min(opts["frames"]) < 1:
         raise ValueError(f"evaluate.locomotion.frames must be 1-based frame numbers, got {opts['frames']}")
     return opts
+
+
+def _references(ctx: EvalContext) -> list[str]:
+    """Trained plain runs of the trivial predictors (zero-velocity, the mean pose: ``ZeroVelocity`` and
+    its subclasses), zero-velocity first."""
+    runs = [r for r in ctx.available(variant=None) if isinstance(ctx.model(r)[0], ZeroVelocity)]
+    return sorted(runs, key=lambda r: (ctx.runs[r] != ZERO, r))
 
 
 def _baselines(ctx: EvalContext, variant: str | None) -> list[str]:
@@ -315,21 +327,23 @@ def run(ctx: EvalContext) -> None:
         t2.add(ctx.label(ctx.runs[r]), [pose(p)], condition=f"{S} initial frames; control", run=r,
                note="ground-truth controls as input at every step")
 
-    # ---------------------------------------------------------------- zero-velocity (reference)
-    for r in ctx.available(ZERO, None):
+    # ---------------------------------------------------------------- zero-velocity, the mean pose (references)
+    for r in _references(ctx):
         model, train = ctx.model(r)
-        label = ctx.label(ZERO)
+        label = ctx.label(ctx.runs[r])
+        what = (f"the train split's mean pose after frame {{S}}" if isinstance(model, MeanPose)
+                else "repeats the pose of frame {S}")
         S = int(model.seed_frames)
         p = ctx.physical(train, model.generate(batch.pose[:, :S], length=T))
         root = held_root(gt_root, S)
         t1.add(label, [motion(p, root)], condition=f"{S} initial frames; no control", run=r, kind="reference",
-               note=f"repeats the pose of frame {S}; root stands still at the ground-truth root of frame {S}")
+               note=f"{what.format(S=S)}; root stands still at the ground-truth root of frame {S}")
         if n_anim:
             samples[label], seed_of[label] = to_global(p[:n_anim], root[:n_anim]), S
         S2 = opts["pose_seed_frames"]
         p2 = ctx.physical(train, model.generate(batch.pose[:, :S2], length=T))
         t2.add(label, [pose(p2)], condition=f"{S2} initial frames; no control", run=r, kind="reference",
-               note=f"repeats the pose of frame {S2}")
+               note=what.format(S=S2))
 
     # ---------------------------------------------------------------- animation samples
     if n_anim:

@@ -34,8 +34,10 @@ column), ``growth`` (its rise from column ``from`` to ``to`` is below every base
 ``below_references`` (below each named calibration row), ``column_less`` (column ``better`` below
 column ``worse`` for each method). Baselines are the block's other methods (ours: ``kind="model"``
 only), minus the claim's ``exclude`` patterns. A verdict is ``holds`` / ``does not hold`` with the
-deciding numbers, ``not evaluated`` when the block or a needed cell is missing (NaN included);
-where the margin is smaller than the method's std over seeds it says so ("within the seed spread").
+deciding numbers, ``not evaluated`` when the block or a needed cell is missing (NaN included), and
+``within noise`` where the deciding gap is smaller than twice the larger standard deviation of the two
+rows compared (over training seeds for models trained with several seeds, over evaluation seeds for
+stochastic rows), so that neither "holds" nor "does not hold" rests on noise.
 """
 
 from __future__ import annotations
@@ -53,13 +55,14 @@ import numpy as np
 import pandas as pd
 
 from .context import COLUMNS, slug
+from .training import section as training_section
 
 log = logging.getLogger(__name__)
 
 JOIN = ["paper", "table", "compare_to", "metric", "column", "method"]
 BLOCK = ["dataset", "compare_to", "metric", "protocol"]
 DASH = "—"
-HOLDS, FAILS, NA = "holds", "does not hold", "not evaluated"
+HOLDS, FAILS, NA, NOISE = "holds", "does not hold", "not evaluated", "within noise"
 
 
 # ============================================================================ inputs
@@ -345,10 +348,9 @@ class ClaimResult:
         judged = [x for x in v if x != NA]
         if not judged:
             return NA
-        if all(x == HOLDS for x in judged):
-            return HOLDS
-        if all(x == FAILS for x in judged):
-            return FAILS
+        for one in (HOLDS, FAILS, NOISE):
+            if all(x == one for x in judged):
+                return one
         return "mixed"
 
 
@@ -365,12 +367,22 @@ def _spread(block: Block, method: str, column: str) -> float:
     return c.std if c is not None and np.isfinite(c.std) else 0.0
 
 
-def _verdict(fails: list[str], parts: list[str], skipped: list[str], method: str) -> tuple[str, str]:
-    """Columns judged -> holds / does not hold; none judged -> not evaluated; missing ones are named."""
+def _noise(gap: float, *stds: float) -> bool:
+    """Whether a difference ``gap`` is within noise: smaller than twice the larger of the two rows'
+    standard deviations (over training seeds, or over evaluation seeds for stochastic rows)."""
+    sd = max([x for x in stds if np.isfinite(x)] or [0.0])
+    return sd > 0 and abs(gap) < 2.0 * sd
+
+
+def _verdict(fails: list[str], parts: list[str], skipped: list[str], method: str,
+             noisy: list[str] | None = None) -> tuple[str, str]:
+    """Columns judged -> holds / does not hold, or *within noise* when no column fails outright and some
+    column's gap is within noise (:func:`_noise`); none judged -> not evaluated; missing ones are named."""
     miss = f"not evaluated at {', '.join(skipped)} (no {method} or comparison value)" if skipped else ""
     if not parts:
         return NA, miss or "no values"
-    return (FAILS if fails else HOLDS), "; ".join(parts + ([miss] if miss else []))
+    verdict = FAILS if fails else (NOISE if noisy else HOLDS)
+    return verdict, "; ".join(parts + ([miss] if miss else []))
 
 
 def _judge(block: Block, claim: Mapping[str, Any], refs: Block | None = None,
@@ -404,7 +416,7 @@ def _judge(block: Block, claim: Mapping[str, Any], refs: Block | None = None,
         base = _baselines(block, method, exclude)
         if not base:
             return NA, "no baseline rows"
-        fails, parts, skipped = [], [], []
+        fails, parts, skipped, noisy = [], [], [], []
         for col in columns:
             v = val(col)
             bv = {m: block.value(m, col) for m in base}
@@ -413,12 +425,14 @@ def _judge(block: Block, claim: Mapping[str, Any], refs: Block | None = None,
                 skipped.append(col)
                 continue
             best = min(bv, key=bv.get)
-            ok = v < bv[best]
-            note = " (within the seed spread)" if abs(bv[best] - v) < _spread(block, method, col) else ""
+            noise = candidate is None and _noise(bv[best] - v, _spread(block, method, col), _spread(block, best, col))
+            note = " (within noise: less than twice the larger std)" if noise else ""
             parts.append(f"{col}: {fmt(v)} vs best baseline {best} {fmt(bv[best])}{note}")
-            if not ok:
+            if noise:
+                noisy.append(col)
+            elif not v < bv[best]:
                 fails.append(col)
-        return _verdict(fails, parts, skipped, method)
+        return _verdict(fails, parts, skipped, method, noisy)
 
     if test == "growth":
         a, b = claim["from"], claim["to"]
@@ -429,8 +443,14 @@ def _judge(block: Block, claim: Mapping[str, Any], refs: Block | None = None,
         if not np.isfinite(g) or not gb:
             return NA, f"missing {a} or {b} values"
         least = min(gb, key=gb.get)
-        return (HOLDS if g < gb[least] else FAILS), \
-            f"rise {a}→{b}: {method} {fmt(g)} vs least-rising baseline {least} {fmt(gb[least])}"
+
+        def sd(m: str) -> float:                       # std of a rise: both ends' stds combined
+            return float(np.hypot(_spread(block, m, a), _spread(block, m, b)))
+
+        detail = f"rise {a}→{b}: {method} {fmt(g)} vs least-rising baseline {least} {fmt(gb[least])}"
+        if candidate is None and _noise(gb[least] - g, sd(method), sd(least)):
+            return NOISE, detail + " (within noise: less than twice the larger std)"
+        return (HOLDS if g < gb[least] else FAILS), detail
 
     if test == "below_references":
         src = refs if refs is not None else block
@@ -681,7 +701,8 @@ def write_report(reports: Path, datasets: Sequence[str], published: Path, opts: 
         for old in fig_dir.glob("*.png"):
             old.unlink()
     figures = plot_curves(reports, datasets, kinds, fig_dir, opts.get("plots") or {})
-    files += figures
+    train_md, train_figs = training_section(reports, datasets, fig_dir, opts.get("plots") or {})
+    files += figures + train_figs
     anim_md, anim_index = _animations_section(reports, datasets)
     e = dict(eval_opts or {})
 
@@ -694,6 +715,7 @@ def write_report(reports: Path, datasets: Sequence[str], published: Path, opts: 
              + "Every number below is in `dvc metrics show` (files `reports/metrics/<dataset>.json`) and in MLflow "
                f"(experiments `motionsynth/<dataset>`, runs `evaluate:<method>`; this report: `report:all`){mlflow_hint}.",
              "## Status", _status_section(datasets, status, ours, reports, anim_index),
+             "## Training", train_md,
              "## Do the papers' claims hold here?",
              "Each claim is checked from the numbers of the tables below, on the paper's own numbers and on ours "
              "(block by block; `mixed`: holds in some blocks only).",

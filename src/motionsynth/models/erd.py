@@ -13,7 +13,7 @@ Choices where the paper is vague (all in :mod:`.recurrent`):
   output layer (the paper names the layer sizes only);
 * the input-noise curriculum of the mocap experiments (Gaussian noise on the inputs, its std raised
   during training so the network learns to correct its own drift) is ``input_noise``: a
-  list of stds used ``noise_every`` epochs each; off by default, on in the ``paper``
+  list of stds, each used for an equal share of the training budget; off by default, on in the ``paper``
   preset (levels ours: the paper gives no schedule in epochs);
 * the mean squared error over frames and features replaces the summed squared error
   (a constant factor);

@@ -17,8 +17,8 @@ Shapes
   not auto-regressive on its own outputs, the whole sequence is one LSTM pass).
 * :meth:`predict` returns dense ``[B, T, J, D]`` from the batch's sparse poses only.
   ``seed_frames = 0``: LocGen does not get a dense seed prefix; it sees the sparse
-  (key) frames ``pose[:, ::k]`` of the whole window, and validation compares all ``T``
-  frames with ``batch.pose`` (keyframes are exact, so the error comes from the in-betweens).
+  (key) frames ``pose[:, ::k]`` of the whole window; validation scores the in-between frames
+  only (:meth:`LocGen.scored_frames`: keyframes are exact).
 
 Choices where the paper is vague (and why)
 ------------------------------------------
@@ -158,6 +158,13 @@ class LocGen(MotionModel):
         else:
             dense = self.densify(sp, M)
         return self.unflat(dense[:, :length])
+
+    def scored_frames(self, T: int) -> Tensor:
+        """The frames validation scores (``val/pred_mse``, LocGen's selection criterion): only the
+        in-betweens it generates, ``t % every != 0`` up to the last keyframe. Keyframes are copied
+        exactly and would only dilute the error."""
+        k, t = self.spec.every, torch.arange(T)
+        return (t % k != 0) & (t <= (T - 1) // k * k)
 
     @torch.no_grad()
     def predict(self, batch: Batch) -> Tensor:

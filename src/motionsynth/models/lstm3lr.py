@@ -10,7 +10,7 @@ Table 4 (Bengio et al. 2015; ``conf/model/scheduled_sampling.yaml``): the invers
 schedule ``eps_i = k / (k + exp(i / k))`` of Bengio Sec. 2.4, see :mod:`.recurrent`.
 
 Choices where the paper is vague: the input-noise curriculum (``input_noise``,
-``noise_every``) as for ERD; mean instead of summed squared error; features, control
+a share of the budget per level) as for ERD; mean instead of summed squared error; features, control
 modes and seed protocol of :class:`~.recurrent.RecurrentBaseline`.
 
 Shapes: ``pose`` ``[B, T, J, D]`` -> inputs ``[B, T-1, Fy+Fc]`` -> LSTM x3 ``[B, T-1, 1000]``

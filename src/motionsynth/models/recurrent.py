@@ -403,10 +403,12 @@ class RecurrentBaseline(MotionModel):
       ``training.family``; the class attribute is ``None`` so the trainer takes the
       dataset's), or ``"vae_lstm"`` / ``"glocal"``, recorded on the instance;
     * ``scheduled_sampling``, ``ss_k``, ``ss_unit``: Bengio et al.'s schedule;
-    * ``input_noise``, ``noise_every``: Gaussian noise on the ground-truth inputs while
-      training (Fragkiadaki et al.'s noise curriculum): a std, or a list of stds used
-      ``noise_every`` epochs each (the last one stays);
-    * ``step_impl``: ``"deferred"`` / ``"cell"`` / ``"module"`` (same numbers, different speed).
+    * ``input_noise``: Gaussian noise on the ground-truth inputs while training (Fragkiadaki
+      et al.'s noise curriculum): a std, or a list of stds, each used for an equal share of the
+      training budget in turn (the trainer reports the progress, :meth:`set_progress`);
+    * ``step_impl``: ``"deferred"`` / ``"cell"`` / ``"module"`` (same numbers, different speed);
+    * ``train_window``: train on random crops of this many frames of each window (acLSTM's authors
+      train on 100-frame sequences; ``None``: whole windows). Evaluation always sees whole windows.
     """
 
     family = None  # type: ignore[assignment]  # the trainer then uses dataset.training.family
@@ -420,11 +422,12 @@ class RecurrentBaseline(MotionModel):
     def __init__(self, spec: DataSpec, hidden_size: int, num_layers: int, *, encoder_sizes: Sequence[int] = (),
                  decoder_sizes: Sequence[int] = (), control_mode: str = "predict", seed_frames: int | None = None,
                  family: str | None = None, scheduled_sampling: bool = False, ss_k: float = 100.0,
-                 ss_unit: str = "step", input_noise: float | Sequence[float] = 0.0, noise_every: int = 1,
-                 step_impl: str = "deferred"):
+                 ss_unit: str = "step", input_noise: float | Sequence[float] = 0.0,
+                 step_impl: str = "deferred", train_window: int | None = None):
         super().__init__(spec)
         check_int("hidden_size", hidden_size)
         check_int("num_layers", num_layers)
+        self.train_window = None if train_window is None else check_int("train_window", train_window, 2)
         encoder_sizes = check_sizes("encoder_sizes", encoder_sizes)
         decoder_sizes = check_sizes("decoder_sizes", decoder_sizes)
         if control_mode not in CONTROL_MODES:
@@ -445,8 +448,8 @@ class RecurrentBaseline(MotionModel):
         self.seed_frames = default_seed_frames(spec, seed_frames)
         self.family = check_family(family)
         self.scheduled_sampling, self.ss_k, self.ss_unit = scheduled_sampling, float(ss_k), ss_unit
-        self.noise_levels, self.noise_every = [float(v) for v in noise], check_int("noise_every", noise_every)
-        self.epoch = 0
+        self.noise_levels = [float(v) for v in noise]
+        self.epoch, self.progress = 0, 0.0
         if scheduled_sampling:
             self.register_buffer("ss_step", torch.zeros((), dtype=torch.long))
 
@@ -461,12 +464,19 @@ class RecurrentBaseline(MotionModel):
         core_in = encoder_sizes[-1] if encoder_sizes else self.input_dim
         self.core = RecurrentCore(self.cell, core_in, hidden_size, num_layers, step_impl)
         self.decoder = mlp((hidden_size, *decoder_sizes, self.state_dim), activate_last=False)
+        if self.residual:  # an untrained residual model is zero-velocity (see Seq2Seq's docstring)
+            nn.init.zeros_(self.decoder[-1].weight)
+            nn.init.zeros_(self.decoder[-1].bias)
 
     # ------------------------------------------------------------------ schedules
     def set_epoch(self, epoch: int) -> None:
         """Called by the trainer at the start of every training epoch (noise curriculum,
         scheduled sampling with ``ss_unit: epoch``)."""
         self.epoch = int(epoch)
+
+    def set_progress(self, step: int, total: int) -> None:
+        """Called by the trainer before every optimiser step: the share of the budget done."""
+        self.progress = step / total if total > 0 else 0.0
 
     def teacher_forcing_prob(self) -> float:
         """Bengio et al. (2015) inverse-sigmoid decay ``eps_i = k / (k + exp(i / k))``."""
@@ -476,7 +486,7 @@ class RecurrentBaseline(MotionModel):
         return self.ss_k / (self.ss_k + math.exp(min(i / self.ss_k, 700.0)))
 
     def noise_std(self) -> float:
-        return self.noise_levels[min(self.epoch // self.noise_every, len(self.noise_levels) - 1)]
+        return self.noise_levels[min(int(self.progress * len(self.noise_levels)), len(self.noise_levels) - 1)]
 
     # ------------------------------------------------------------------ features
     def _state(self, pose: Tensor, controls: Tensor | None) -> Tensor:
@@ -610,7 +620,17 @@ class RecurrentBaseline(MotionModel):
         return loss, logs
 
     def loss(self, batch: Batch) -> tuple[Tensor, dict[str, float]]:
-        return self._objective(batch.pose, batch.controls, batch.labels)
+        """The scheme's next-frame MSE; while training, on a random ``train_window``-frame crop of
+        each batch's windows (one offset per batch) when ``train_window`` is set and shorter."""
+        pose, controls, labels = batch.pose, batch.controls, batch.labels
+        T = pose.shape[1]
+        if self.training and self.train_window and self.train_window < T:
+            off = int(torch.randint(0, T - self.train_window + 1, ()))
+            sl = slice(off, off + self.train_window)
+            pose = pose[:, sl]
+            controls = controls[:, sl] if controls is not None else None
+            labels = labels[:, sl] if labels is not None and labels.dim() == 2 else labels
+        return self._objective(pose, controls, labels)
 
     # ------------------------------------------------------------------ synthesis
     @torch.no_grad()

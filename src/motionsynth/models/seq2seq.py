@@ -18,6 +18,11 @@ and ``T' = train_target_len`` (default: the rest of the window). Multi-action tr
 
 Choices where the paper is vague / differs from our data:
 
+* **the output layer starts at zero** (ours; the authors' code draws it uniformly in
+  +-0.04): an untrained model is then exactly zero-velocity. With a random output layer every
+  fed-back step adds a random velocity, which accumulates over the decoder's steps: the first
+  training losses were 200 (CMU, 75 decoder steps) to 1,200-2,300 (bandai2_locomotion, 180
+  steps) against about 1 for the other models, and a short or unlucky run could diverge;
 * windows longer than ``S + T'`` are cropped at a random offset while training (the
   paper samples random sub-sequences of the training sequences), at offset 0 when
   evaluating;
@@ -48,6 +53,9 @@ class Seq2Seq(RecurrentBaseline):
 
     def __init__(self, spec: DataSpec, hidden_size: int = 1024, num_layers: int = 1,
                  train_source_len: int | None = None, train_target_len: int | None = None, **common):
+        if common.get("train_window") is not None:
+            raise ValueError("Seq2Seq crops its training windows to train_source_len + train_target_len; "
+                             "set train_target_len instead of train_window")
         super().__init__(spec, hidden_size, num_layers, **common)
         self.train_source_len = self.seed_frames if train_source_len is None else check_int(
             "train_source_len", train_source_len)

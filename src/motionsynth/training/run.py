@@ -20,6 +20,7 @@ from .. import tracking
 from ..models.base import MotionModel
 from . import distributed
 from .checkpoint import fingerprint
+from .criteria import converged
 from .data import open_split
 from .trainer import TrainConfig, Trainer, seed_everything
 
@@ -40,13 +41,22 @@ def model_class(target: str) -> type[MotionModel]:
 
 
 def train_config(cfg: dict[str, Any]) -> TrainConfig:
-    """Trainer settings, later entries winning: the model's paper defaults (``model.train``),
-    the model's budget for the active profile (``model.schedule.<profile_name>``: how many
-    epochs and batches this model needs to learn under that profile), then every non-null
-    ``train`` value (the profile's and the command line's overrides)."""
-    schedule = (cfg["model"].get("schedule") or {}).get(cfg.get("profile_name"), {}) or {}
-    merged = {**cfg["model"].get("train", {}), **schedule,
-              **{k: v for k, v in cfg["train"].items() if v is not None}}
+    """Trainer settings, later entries winning: the model's paper defaults (``model.train``), the
+    model's budget for the active profile (``model.schedule.<profile_name>``: optimiser steps,
+    validation interval, warm-up and learning-rate schedule that make this model converge under
+    that profile), the dataset's entry in it (``schedule.<profile_name>.datasets.<dataset>``), a
+    profile's budget for every model (``profile_schedule``: the smoke profile's few steps), then
+    every non-null ``train`` value (the profile's and the command line's overrides). A budget given
+    as ``train.epochs`` (data passes, a validation after each) replaces any ``steps`` and ``eval_every``
+    not given under ``train`` too."""
+    schedule = dict((cfg["model"].get("schedule") or {}).get(cfg.get("profile_name"), {}) or {})
+    per_dataset = schedule.pop("datasets", None) or {}
+    ds_name = (cfg.get("dataset") or {}).get("name")
+    explicit = {k: v for k, v in cfg["train"].items() if v is not None}
+    merged = {**cfg["model"].get("train", {}), **schedule, **(per_dataset.get(ds_name) or {}),
+              **(cfg.get("profile_schedule") or {}), **explicit}
+    if "epochs" in explicit:            # N data passes, validated after each: the schedule's steps do not apply
+        merged.update({k: None for k in ("steps", "eval_every") if k not in explicit})
     known = TrainConfig.__dataclass_fields__
     unknown = sorted(set(merged) - set(known))
     if unknown:
@@ -158,20 +168,54 @@ def run(cfg: dict[str, Any], progress: bool = True, job=None) -> dict[str, Any]:
         trainer.on_epoch = on_epoch
         result = trainer.fit()
         best = _best_row(result["history"], tcfg.monitor)
-        summary = {"model": m, "run": name, "variant": cfg.get("variant_name"), "dataset": ds, "epochs_run": result["epochs_run"], "seconds": result["seconds"],
-                   "best_epoch": best.get("epoch"), "monitor": tcfg.monitor,
-                   **{k: v for k, v in best.items() if k != "epoch"},
+        summary = {"model": m, "run": name, "variant": cfg.get("variant_name"), "dataset": ds,
+                   "epochs_run": result["epochs_run"], "steps": int(result["history"][-1].get("step", 0)),
+                   "budget_steps": result["total_steps"], "steps_per_pass": result["steps_per_pass"],
+                   "seconds": result["seconds"], "best_epoch": best.get("epoch"), "best_step": best.get("step"),
+                   "monitor": tcfg.monitor,
+                   "converged": trainer_converged(result["history"], tcfg, trainable=trainer.optim is not None),
+                   **{k: v for k, v in best.items() if k not in ("epoch", "step")},
                    "parameters": sum(p.numel() for p in model.parameters()),
                    "train_windows": len(train), "val_windows": len(val)}
         if "val/zero_velocity_mse" in best:
             summary["beats_zero_velocity"] = bool(best["val/pred_mse"] < best["val/zero_velocity_mse"])
         if main:
             (out / "summary.json").write_text(json.dumps(summary, indent=1))
+            write_curve(out / CURVE, result["history"], tcfg.monitor, name)
             png = sample_figure(model, val, out / "sample.png", seed=tcfg.seed)
             tracking.log_metrics({f"best/{k.split('/', 1)[-1]}": v for k, v in best.items() if k != "epoch"})
             for art in (out / "config.yaml", out / "best.pt", png):
                 tracking.log_artifact(art)
     return summary
+
+
+#: the learning curve of a run, next to its checkpoints (the train stage copies it to reports/plots/train/)
+CURVE = "curve.csv"
+
+
+def write_curve(path: Path, history: list[dict], monitor: str, run: str) -> Path:
+    """One row per validation round: ``run, step, round, data_epoch, lr, criterion`` (the selection
+    criterion ``monitor``), ``train_loss``, ``val_loss`` and every other ``val/*`` metric
+    (``val/pred_mse`` -> ``val_pred_mse``): what ``dvc plots`` and the report draw."""
+    import pandas as pd
+
+    rows = []
+    for h in history:
+        row = {"run": run, "step": h.get("step", 0), "round": h.get("epoch", 0), "data_epoch": h.get("data_epoch", 0.0),
+               "lr": h.get("lr", float("nan")), "criterion": h.get(monitor, float("nan")),
+               "train_loss": h.get("train/loss", float("nan"))}
+        row.update({k.replace("/", "_"): v for k, v in h.items() if k.startswith("val/")})
+        rows.append(row)
+    pd.DataFrame(rows).to_csv(path, index=False)
+    return path
+
+
+def trainer_converged(history: list[dict], tcfg: TrainConfig, trainable: bool = True) -> bool:
+    """``converged`` of a run (:func:`~.criteria.converged` on its selection criterion); a model with
+    nothing to learn (zero-velocity, the mean pose) is converged by definition."""
+    if not trainable:
+        return True
+    return converged(history, tcfg.monitor, tcfg.converged_tol, tcfg.converged_tail)
 
 
 def _best_row(history: list[dict], monitor: str) -> dict:

@@ -1,18 +1,28 @@
 """The one trainer every model uses.
 
-* Deterministic: seeds Python, numpy and torch, and the batch order is a
-  function of ``(seed, epoch)`` only (:meth:`WindowData.iterate`). A rerun on
-  the CPU gives bitwise-equal weights and metrics.
-* Crash-safe: ``last.pt`` (model, optimiser, epoch, history, RNG state, best
-  score, MLflow run id) is written atomically every ``checkpoint_every`` epochs.
-  Rerunning after a ``kill -9`` resumes from it and ends with the same weights
-  as an uninterrupted run. ``best.pt`` holds the best weights by ``monitor``.
-* Early stopping on the monitored validation metric, with ``patience`` epochs.
-* Common validation metrics for every model, so that runs compare:
-  ``val/loss`` (the model's own objective), ``val/pred_mse`` (MSE of
-  ``model.predict`` on the frames after its seed, in normalised units) and
-  ``val/zero_velocity_mse`` (the same frames predicted by repeating the last
-  seed frame).
+* Budgets in optimiser steps: ``train.steps`` (else ``train.epochs`` passes over the data), with a
+  linear warm-up (``warmup_steps``) and a constant or cosine learning rate (``lr_schedule``,
+  ``min_lr_ratio``); :func:`lr_factor`. The model's config gives its budget per profile (and per
+  dataset), ``conf/model/<name>.yaml: schedule``.
+* Validation every ``eval_every`` steps (a *round*; the history's ``epoch`` counts rounds, ``step``
+  the optimiser steps, ``data_epoch`` the passes over the data). Early stopping after ``patience``
+  rounds without improvement of ``monitor``; ``best.pt`` holds the weights of the best round.
+* Selection: ``monitor`` is a criterion a constant (mean) pose cannot win, by default ``val/rel_zv``
+  (:mod:`.criteria`: per-horizon MSE relative to zero-velocity, weighted ``1/h``); models without
+  seed frames or with their own objective set theirs (LocGen: the error of its in-betweens; VAE-LSTM:
+  its negative ELBO). ``val/pred_mse`` (the long roll-out error) and ``val/zero_velocity_mse`` are
+  logged beside it. ``converged`` (:func:`.criteria.converged`) is computed by the caller from the
+  history.
+* Deterministic: seeds Python, numpy and torch; the batches of step ``g`` are a function of
+  ``(seed, g)`` only (:meth:`Trainer.train_round`) and torch is reseeded from ``(seed, round,
+  rank)`` at every round. A rerun on the CPU gives bitwise-equal weights and metrics.
+* Crash-safe: ``last.pt`` (model, optimiser, round, history, RNG state, best score, MLflow run id)
+  is written atomically every ``checkpoint_every`` rounds. Rerunning after a ``kill -9`` resumes
+  from it and ends with the same weights as an uninterrupted run.
+* Models with nothing to learn (zero-velocity, the mean pose: ``reference = True``) are evaluated
+  once (after ``fit_statistics(train)`` where the model has it).
+* Progress hooks: the model's ``set_epoch(round)`` and ``set_progress(step, total_steps)`` (noise
+  curricula, scheduled sampling, KL warm-up) are called before every step.
 * Multi-process data parallel (DDP) under ``torchrun`` (:mod:`.distributed`; a single
   process runs exactly the code it ran before), e.g.
   ``torchrun --standalone --nproc_per_node=2 pipelines/train.py dataset=... model=...``:
@@ -26,13 +36,11 @@
     attribute ``ddp_find_unused_parameters = True`` (without it DDP stops with an error
     naming the parameters, it does not hang).
   - ``train.batch_size`` is the batch of ONE process: the global batch of an optimiser step
-    is ``world x batch_size``. Rank ``r`` takes every ``world``-th batch of the
-    ``(seed, epoch)`` permutation (:meth:`WindowData.iterate` with ``rank``/``world``,
-    ``torch.utils.data.DistributedSampler`` semantics; the epoch is passed, as
-    ``DistributedSampler.set_epoch`` would be, so the shuffle differs per epoch). Global
-    step ``k`` therefore covers exactly the windows one process with batch
-    ``world x batch_size`` sees at its step ``k``, and ``max_batches_per_epoch`` counts
-    these global steps. Each rank's loss is weighted by ``world x (its windows) / (the
+    is ``world x batch_size``. Rank ``r`` takes every ``world``-th batch of the data pass's
+    ``(seed, pass)`` permutation (``torch.utils.data.DistributedSampler`` semantics with
+    ``set_epoch(pass)``). Global step ``k`` therefore covers exactly the windows one process
+    with batch ``world x batch_size`` sees at its step ``k``, and ``steps`` / ``eval_every``
+    count these global steps. Each rank's loss is weighted by ``world x (its windows) / (the
     step's windows)`` before the backward, so DDP's gradient average is the gradient of
     the mean over the step's windows also when the last batches are short; a rank whose
     shard has run out on the last step runs its previous batch with weight 0, so every rank
@@ -41,14 +49,14 @@
     per-window term averaged over the batch); otherwise the usual DDP approximation.
   - ``train/*`` metrics are means over the windows of all ranks (all-reduce of sums and
     counts). Validation: every rank evaluates the same full validation set with the same
-    (all-reduced, hence identical) weights, so the metrics, the best epoch, patience and
+    (all-reduced, hence identical) weights, so the metrics, the best round, patience and
     early stopping agree on every rank without any communication.
-  - the torch RNG is reseeded at the start of every epoch from ``(seed, epoch, rank)``: ranks
+  - the torch RNG is reseeded at the start of every round from ``(seed, round, rank)``: ranks
     draw different noise (dropout, sampling) for their different windows, and a resumed run
     draws what an uninterrupted one would.
   - only rank 0 writes ``best.pt`` / ``last.pt``, calls ``on_epoch`` / ``on_step`` (the
-    logging hooks) and shows progress; a barrier after each epoch's writes keeps the other
-    ranks from running ahead (into the next epoch, a resume or the end of the run) before
+    logging hooks) and shows progress; a barrier after each round's writes keeps the other
+    ranks from running ahead (into the next round, a resume or the end of the run) before
     the checkpoint is on disk. :meth:`Trainer.try_resume` reads ``last.pt`` on every rank
     (the output folder must be one all ranks see: always so on one node).
 """
@@ -70,6 +78,7 @@ from tqdm.auto import tqdm
 from ..models.base import Batch, MotionModel
 from . import checkpoint as ckpt
 from . import distributed
+from .criteria import horizon_weighted_ratio
 from .data import WindowData
 
 log = logging.getLogger(__name__)
@@ -77,18 +86,24 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class TrainConfig:
-    epochs: int = 20
+    steps: int | None = None      # optimiser-step budget (global steps); None: epochs x steps per data pass
+    epochs: int = 20              # data passes: the budget when `steps` is None
+    eval_every: int | None = None  # optimiser steps between validations (a round); None: one data pass
     batch_size: int = 32          # per process: under torchrun the global batch is world x batch_size
     optimizer: str = "adam"
     lr: float = 1e-3
+    lr_schedule: str = "constant"  # constant | cosine (after the warm-up)
+    warmup_steps: int = 0         # linear warm-up from lr / warmup_steps to lr
+    min_lr_ratio: float = 0.0     # cosine: the final lr as a fraction of lr
     weight_decay: float = 0.0
     momentum: float = 0.9         # SGD only
     grad_clip: float | None = 1.0
-    patience: int = 5
+    patience: int = 5             # validation rounds without improvement before stopping
     min_delta: float = 0.0
-    monitor: str = "val/pred_mse"
-    checkpoint_every: int = 1
-    max_batches_per_epoch: int | None = None  # optimiser steps (global batches) per epoch
+    monitor: str = "val/rel_zv"   # selection criterion (motionsynth.training.criteria)
+    converged_tol: float = 0.01   # `converged`: improved by < this (relative) ...
+    converged_tail: float = 0.2   # ... over this last fraction of the steps
+    checkpoint_every: int = 1     # rounds between atomic last.pt writes
     val_windows: int | None = None    # validate on N evenly spaced windows (None: all): the same ones for every model
     eval_batch_size: int = 64
     seed: int = 0
@@ -98,18 +113,38 @@ class TrainConfig:
     def validate(self) -> "TrainConfig":
         """Reject garbage before any work starts."""
         problems = []
-        if not isinstance(self.epochs, int) or self.epochs < 0:
-            problems.append(f"train.epochs must be a non-negative integer, got {self.epochs!r}")
+
+        def count(name: str, v, minimum: int, optional: bool = False) -> None:
+            if optional and v is None:
+                return
+            if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
+                problems.append(f"train.{name} must be an integer >= {minimum}{' or null' if optional else ''}, "
+                                f"got {v!r}")
+
+        count("steps", self.steps, 0, optional=True)
+        count("epochs", self.epochs, 0)
+        count("eval_every", self.eval_every, 1, optional=True)
+        count("warmup_steps", self.warmup_steps, 0)
         if not isinstance(self.batch_size, int) or self.batch_size <= 0:
             problems.append(f"train.batch_size must be a positive integer, got {self.batch_size!r}")
         if not (isinstance(self.lr, (int, float)) and self.lr > 0 and math.isfinite(self.lr)):
             problems.append(f"train.lr must be a positive number, got {self.lr!r}")
         if self.optimizer not in ("adam", "adamw", "sgd"):
             problems.append(f"train.optimizer must be adam, adamw or sgd, got {self.optimizer!r}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            problems.append(f"train.lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        if not (isinstance(self.min_lr_ratio, (int, float)) and 0 <= self.min_lr_ratio <= 1):
+            problems.append(f"train.min_lr_ratio must lie in [0, 1], got {self.min_lr_ratio!r}")
         if not (isinstance(self.momentum, (int, float)) and 0 <= self.momentum < 1):
             problems.append(f"train.momentum must lie in [0, 1), got {self.momentum!r}")
         if self.weight_decay < 0:
             problems.append(f"train.weight_decay must be >= 0, got {self.weight_decay!r}")
+        if not (isinstance(self.converged_tol, (int, float)) and self.converged_tol > 0):
+            problems.append(f"train.converged_tol must be > 0, got {self.converged_tol!r}")
+        if not (isinstance(self.converged_tail, (int, float)) and 0 < self.converged_tail < 1):
+            problems.append(f"train.converged_tail must lie in (0, 1), got {self.converged_tail!r}")
+        if not (isinstance(self.monitor, str) and self.monitor.startswith("val/")):
+            problems.append(f"train.monitor must name a validation metric (val/...), got {self.monitor!r}")
         for name in ("val_windows",):
             v = getattr(self, name)
             if v is not None and (not isinstance(v, int) or v < 1):
@@ -127,6 +162,22 @@ class TrainConfig:
         return self
 
 
+LR_SCHEDULES = ("constant", "cosine")
+
+
+def lr_factor(step: int, total: int, cfg: TrainConfig) -> float:
+    """The learning rate of optimiser step ``step`` (0-based) as a fraction of ``cfg.lr``: a linear
+    warm-up over ``warmup_steps`` (``(step + 1) / warmup_steps``), then constant, or a cosine from 1
+    down to ``min_lr_ratio`` at step ``total``."""
+    w = cfg.warmup_steps
+    if step < w:
+        return (step + 1) / w
+    if cfg.lr_schedule == "constant" or total <= w:
+        return 1.0
+    frac = min(max((step - w) / max(total - w, 1), 0.0), 1.0)
+    return cfg.min_lr_ratio + (1.0 - cfg.min_lr_ratio) * 0.5 * (1.0 + math.cos(math.pi * frac))
+
+
 def seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed % 2**32)
@@ -141,8 +192,10 @@ def resolve_device(name: str, threads: int) -> torch.device:
 
 
 def make_optimizer(model: torch.nn.Module, cfg: TrainConfig) -> torch.optim.Optimizer | None:
+    """The optimiser of ``cfg``; ``None`` for a model with nothing to learn (no trainable parameter, or a
+    ``reference`` model such as zero-velocity or the mean pose: the trainer then evaluates it once)."""
     params = [p for p in model.parameters() if p.requires_grad]
-    if not params:
+    if not params or getattr(model, "reference", False):
         return None
     if cfg.optimizer == "adamw":
         return torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -228,7 +281,7 @@ class Trainer:
         torch.set_rng_state(st["rng"])
         self.run_id = st.get("run_id") or None
         self.done = bool(st.get("done", False))
-        log.info("resumed from %s at epoch %d", last, self.start_epoch)
+        log.info("resumed from %s at round %d", last, self.start_epoch)
         return True
 
     def _save(self, epoch: int, name: str) -> None:
@@ -236,127 +289,143 @@ class Trainer:
         if self.is_main:
             ckpt.save_atomic(self.state(epoch), self.out / name)
 
-    # ------------------------------------------------------------------ loops
-    def _set_epoch(self, epoch: int) -> None:
+    # ------------------------------------------------------------------ the step plan
+    @property
+    def steps_per_pass(self) -> int:
+        """Optimiser (global) steps in one pass over the training windows."""
+        return max(math.ceil(len(self.train_data) / (self.cfg.batch_size * self.world)), 1)
+
+    @property
+    def total_steps(self) -> int:
+        """The budget: ``train.steps``, else ``train.epochs`` data passes (0 without trainable parameters)."""
+        if self.optim is None:
+            return 0
+        return int(self.cfg.steps) if self.cfg.steps is not None else int(self.cfg.epochs) * self.steps_per_pass
+
+    @property
+    def round_steps(self) -> int:
+        """Optimiser steps between two validations: ``train.eval_every``, else one data pass."""
+        return int(self.cfg.eval_every or self.steps_per_pass)
+
+    @property
+    def rounds(self) -> int:
+        return math.ceil(self.total_steps / self.round_steps) if self.total_steps else 0
+
+    def _pass_batches(self, data_epoch: int) -> list[np.ndarray]:
+        """The window indices of every batch of data pass ``data_epoch``: a function of
+        ``(seed, data_epoch)`` only (:meth:`WindowData.iterate`'s order), cached for the current pass."""
+        if getattr(self, "_cached_pass", (None,))[0] != data_epoch:
+            n, bs = len(self.train_data), self.cfg.batch_size
+            order = np.random.default_rng([self.cfg.seed, data_epoch]).permutation(n)
+            self._cached_pass = (data_epoch, [order[i:i + bs] for i in range(0, n, bs)])
+        return self._cached_pass[1]
+
+    def _set_progress(self, round_: int, step: int) -> None:
         if hasattr(self.model, "set_epoch"):
-            self.model.set_epoch(epoch)
+            self.model.set_epoch(round_)
+        if hasattr(self.model, "set_progress"):
+            self.model.set_progress(step, self.total_steps)
 
-    def train_epoch(self, epoch: int) -> dict[str, float]:
-        """One epoch: ``ceil(windows / (world x batch_size))`` optimiser steps (at most
-        ``max_batches_per_epoch``); returns the ``train/*`` means over all ranks' windows."""
-        if self.distributed:
-            return self._train_epoch_ddp(epoch)
-        self.model.train()
-        self._set_epoch(epoch)
-        total, n, terms = 0.0, 0, {}
-        n_batches = math.ceil(len(self.train_data) / self.cfg.batch_size)
-        if self.cfg.max_batches_per_epoch:
-            n_batches = min(n_batches, self.cfg.max_batches_per_epoch)
-        it = self.train_data.iterate(self.cfg.batch_size, shuffle=True, seed=self.cfg.seed, epoch=epoch)
-        bar = tqdm(total=n_batches, desc=f"epoch {epoch}", disable=not self.progress, leave=False)
-        for i, batch in enumerate(it):
-            if i >= n_batches:
-                break
-            batch = batch.to(self.device)
-            loss, logs = self.model.loss(batch)
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"non-finite training loss at epoch {epoch}, batch {i}: {logs}")
-            if self.optim is not None:
-                self.optim.zero_grad(set_to_none=True)
-                loss.backward()
-                if self.cfg.grad_clip:
-                    torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
-                self.optim.step()
-            total += float(loss.detach()) * batch.size
-            n += batch.size
-            for k, v in logs.items():
-                terms[k] = terms.get(k, 0.0) + float(v) * batch.size
-            if self.on_step:
-                self.on_step(epoch, i, float(loss.detach()))
-            bar.update(1)
-            bar.set_postfix(loss=f"{float(loss.detach()):.4f}")
-        bar.close()
-        out = {"train/loss": total / max(n, 1)}
-        out.update({f"train/{k}": v / max(n, 1) for k, v in terms.items()})
-        return out
+    # ------------------------------------------------------------------ training
+    def _rank_seed(self, round_: int) -> int:
+        """The torch seed of this rank's training draws in round ``round_``."""
+        return int(np.random.SeedSequence([self.cfg.seed, round_, self.rank]).generate_state(1)[0])
 
-    def _rank_seed(self, epoch: int) -> int:
-        """The torch seed of this rank's training draws in ``epoch`` (DDP)."""
-        return int(np.random.SeedSequence([self.cfg.seed, epoch, self.rank]).generate_state(1)[0])
+    def train_round(self, round_: int) -> dict[str, float]:
+        """Optimiser steps ``round_ * round_steps ..`` (at most ``round_steps``, never past the budget);
+        returns the ``train/*`` means over all ranks' windows.
 
-    def _train_epoch_ddp(self, epoch: int) -> dict[str, float]:
-        """:meth:`train_epoch` on rank ``self.rank`` of ``self.world`` (see the module docstring).
-
-        Batch ``j`` of the epoch's permutation (``batch_size`` windows, the last one shorter)
-        is rank ``j % world``'s batch of global step ``j // world``; the table of windows per
-        (step, rank) follows from the window count alone, so weighting needs no communication.
+        Global step ``g`` is step ``i = g % steps_per_pass`` of data pass ``e = g // steps_per_pass``:
+        with ``world`` ranks, rank ``r`` takes batch ``i * world + r`` of that pass's permutation
+        (``torch.utils.data.DistributedSampler`` semantics), so the batches of a step are a function
+        of ``(seed, g)`` alone and a resumed run sees exactly what an uninterrupted one would. Each
+        rank's loss is weighted by ``world x (its windows) / (the step's windows)`` so that DDP's
+        gradient average is the mean over the step's windows when the last batch of a pass is short;
+        a rank without a batch on such a step runs its previous batch with weight 0 (every rank joins
+        every all-reduce). The learning rate of step ``g`` is ``lr * lr_factor(g)`` (warm-up, decay).
         """
-        import torch.distributed as dist
-
         self.model.train()
-        self._set_epoch(epoch)
-        torch.manual_seed(self._rank_seed(epoch))
-        bs, world, n_windows = self.cfg.batch_size, self.world, len(self.train_data)
-        n_steps = math.ceil(n_windows / (bs * world))
-        if self.cfg.max_batches_per_epoch:
-            n_steps = min(n_steps, self.cfg.max_batches_per_epoch)
-        first = (np.arange(n_steps)[:, None] * world + np.arange(world)[None, :]) * bs   # [steps, world]
-        sizes = np.clip(n_windows - first, 0, bs)                                          # [steps, world] windows
-        it = self.train_data.iterate(bs, shuffle=True, seed=self.cfg.seed, epoch=epoch, rank=self.rank, world=world)
-        total, n, terms = 0.0, 0, {}
-        previous: Batch | None = None
-        bar = tqdm(total=n_steps, desc=f"epoch {epoch}", disable=not self.progress, leave=False)
-        for i in range(n_steps):
-            mine, step_windows = int(sizes[i, self.rank]), int(sizes[i].sum())
-            batch = next(it) if mine > 0 else None
-            if batch is None:  # this rank's shard has run out on the last step: join the all-reduce with weight 0
-                batch = previous if previous is not None else self.train_data.batch(np.arange(min(bs, n_windows)))
+        torch.manual_seed(self._rank_seed(round_))
+        bs, world, n = self.cfg.batch_size, self.world, len(self.train_data)
+        first = round_ * self.round_steps
+        last = min(first + self.round_steps, self.total_steps)
+        total, count, terms = 0.0, 0, {}
+        previous = None
+        bar = tqdm(total=last - first, desc=f"round {round_}", disable=not self.progress, leave=False)
+        for g in range(first, last):
+            self._set_progress(round_, g)
+            e, i = divmod(g, self.steps_per_pass)
+            batches = self._pass_batches(e)
+            sizes = [len(batches[j]) if j < len(batches) else 0 for j in range(i * world, (i + 1) * world)]
+            mine, step_windows = sizes[self.rank], sum(sizes)
+            if mine > 0:
+                batch = self.train_data.batch(batches[i * world + self.rank])
+            else:  # this rank's share of the pass has run out on its last step: weight 0
+                batch = previous if previous is not None else self.train_data.batch(np.arange(min(bs, n)))
             batch = batch.to(self.device)
             previous = batch
+            for group in self.optim.param_groups:
+                group["lr"] = self.cfg.lr * lr_factor(g, self.total_steps, self.cfg)
             loss, logs = self.ddp(batch) if self.ddp is not None else self.model.loss(batch)
             if not torch.isfinite(loss):
-                raise FloatingPointError(f"non-finite training loss at epoch {epoch}, batch {i} "
-                                         f"(rank {self.rank}): {logs}")
-            if self.optim is not None:
-                self.optim.zero_grad(set_to_none=True)
-                # DDP averages over ranks: this weight turns the average into the step's window mean
-                (loss * (mine * world / step_windows)).backward()
-                if self.cfg.grad_clip:
-                    torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
-                self.optim.step()
+                raise FloatingPointError(f"non-finite training loss at step {g} (round {round_}"
+                                         f"{f', rank {self.rank}' if self.distributed else ''}): {logs}")
+            self.optim.zero_grad(set_to_none=True)
+            # DDP averages over ranks: this weight turns the average into the step's window mean
+            (loss * (mine * world / step_windows) if self.distributed else loss).backward()
+            if self.cfg.grad_clip:
+                torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
+            self.optim.step()
             value = float(loss.detach())
             if mine > 0:
                 total += value * mine
-                n += mine
+                count += mine
                 for k, v in logs.items():
                     terms[k] = terms.get(k, 0.0) + float(v) * mine
             if self.on_step:
-                step = torch.tensor([value * mine], dtype=torch.float64, device=self.device)
-                dist.all_reduce(step)
-                if self.is_main:
-                    self.on_step(epoch, i, float(step) / step_windows)
-            bar.update(1)
-            bar.set_postfix(loss=f"{value:.4f}")
-        bar.close()
-        # means over all ranks' windows; the union of the log keys, in one order on every rank
-        keys: list[list[str]] = [[] for _ in range(world)]
-        dist.all_gather_object(keys, sorted(terms))
-        names = sorted(set().union(*keys))
-        sums = torch.tensor([total, n, *(terms.get(k, 0.0) for k in names)], dtype=torch.float64, device=self.device)
-        dist.all_reduce(sums)
-        sums = sums.tolist()
-        count = max(sums[1], 1)
-        out = {"train/loss": sums[0] / count}
-        out.update({f"train/{k}": v / count for k, v in zip(names, sums[2:])})
-        return out
+                if self.distributed:
+                    import torch.distributed as dist
 
+                    t = torch.tensor([value * mine], dtype=torch.float64, device=self.device)
+                    dist.all_reduce(t)
+                    value = float(t) / step_windows
+                if self.is_main:
+                    self.on_step(round_, g, value)
+            bar.update(1)
+            bar.set_postfix(loss=f"{float(loss.detach()):.4f}")
+        bar.close()
+        return self._reduce_means(total, count, terms)
+
+    def _reduce_means(self, total: float, count: int, terms: dict[str, float]) -> dict[str, float]:
+        """``train/*`` means over the windows of all ranks (all-reduce of sums and counts under DDP)."""
+        if self.distributed:
+            import torch.distributed as dist
+
+            keys: list[list[str]] = [[] for _ in range(self.world)]
+            dist.all_gather_object(keys, sorted(terms))        # the union of the log keys, in one order
+            names = sorted(set().union(*keys))
+            sums = torch.tensor([total, count, *(terms.get(k, 0.0) for k in names)], dtype=torch.float64,
+                                device=self.device)
+            dist.all_reduce(sums)
+            total, count, *rest = sums.tolist()
+            terms = dict(zip(names, rest))
+        c = max(count, 1)
+        return {"train/loss": total / c, **{f"train/{k}": v / c for k, v in terms.items()}}
+
+    # ------------------------------------------------------------------ validation
     @torch.no_grad()
     def evaluate(self, data: WindowData, prefix: str = "val") -> dict[str, float]:
-        """The model's loss, its prediction MSE after its seed frames, and zero-velocity's on the same frames."""
+        """The model's loss and its prediction error against zero-velocity's, per horizon.
+
+        ``pred_mse``: MSE of ``model.predict`` over the scored frames (``model.scored_frames(T)``,
+        default every frame after the ``seed_frames`` seed); ``zero_velocity_mse``: the same frames
+        predicted by repeating the last seed frame; ``rel_zv``: the selection criterion
+        :func:`~.criteria.horizon_weighted_ratio` of the two per-horizon curves (models with a seed).
+        """
         self.model.eval()
         S = int(getattr(self.model, "seed_frames", 0))
-        sums = {"loss": 0.0, "pred_mse": 0.0, "zero_velocity_mse": 0.0}
-        n = 0
+        loss_sum, n = 0.0, 0
+        err_t = zv_t = mask = None
         g = torch.get_rng_state()
         torch.manual_seed(self.cfg.seed + 1)  # sampling models: the same draws at every evaluation
         if self.cfg.val_windows and self.cfg.val_windows < len(data):
@@ -370,23 +439,35 @@ class Trainer:
             batch = batch.to(self.device)
             loss, _ = self.model.loss(batch)
             pred, tgt = self.model.predict(batch), target_of(self.model, batch)
-            sums["loss"] += float(loss.detach()) * batch.size
-            sums["pred_mse"] += float(((pred[:, S:] - tgt[:, S:]) ** 2).mean()) * batch.size
+            e = ((pred - tgt) ** 2).flatten(2).mean(-1).double().sum(0)             # [T]: summed over windows
+            err_t = e if err_t is None else err_t + e
             if S > 0:
-                zv = tgt[:, S - 1:S].expand_as(tgt[:, S:])
-                sums["zero_velocity_mse"] += float(((zv - tgt[:, S:]) ** 2).mean()) * batch.size
+                z = ((tgt[:, S - 1:S] - tgt) ** 2).flatten(2).mean(-1).double().sum(0)
+                zv_t = z if zv_t is None else zv_t + z
+            if mask is None:
+                T = tgt.shape[1]
+                mask = (self.model.scored_frames(T) if hasattr(self.model, "scored_frames")
+                        else torch.arange(T) >= S).to(e.device)
+            loss_sum += float(loss.detach()) * batch.size
             n += batch.size
         torch.set_rng_state(g)
-        out = {f"{prefix}/{k}": v / max(n, 1) for k, v in sums.items() if not (k == "zero_velocity_mse" and S == 0)}
+        n = max(n, 1)
+        out = {f"{prefix}/loss": loss_sum / n, f"{prefix}/pred_mse": float(err_t[mask].mean()) / n}
+        if S > 0:
+            out[f"{prefix}/zero_velocity_mse"] = float(zv_t[S:].mean()) / n
+            out[f"{prefix}/rel_zv"] = horizon_weighted_ratio((err_t[S:] / n).tolist(), (zv_t[S:] / n).tolist())
         return out
 
+    # ------------------------------------------------------------------ the loop
     def fit(self) -> dict[str, Any]:
         t0 = time.perf_counter()
         if len(self.train_data) == 0 or len(self.val_data) == 0:
             raise ValueError(f"empty data: {len(self.train_data)} train and {len(self.val_data)} val windows")
-        epochs = self.cfg.epochs if self.optim is not None and not self.done else 0
-        if epochs == 0 and not self.history:  # nothing to learn (zero-velocity): evaluate once
-            metrics = {"epoch": 0, **self.evaluate(self.val_data)}
+        rounds = self.rounds if not self.done else 0
+        if rounds == 0 and not self.history:  # nothing to learn (zero-velocity, the mean pose): evaluate once
+            if hasattr(self.model, "fit_statistics"):  # e.g. the mean pose of the train split
+                self.model.fit_statistics(self.train_data)
+            metrics = {"epoch": 0, "step": 0, **self.evaluate(self.val_data)}
             self.history.append(metrics)
             self.best = metrics.get(self.cfg.monitor, math.inf)
             self.done = True
@@ -395,31 +476,39 @@ class Trainer:
             distributed.barrier()
             if self.on_epoch and self.is_main:
                 self.on_epoch(0, metrics)
-        for epoch in range(self.start_epoch, epochs):
-            metrics = {"epoch": epoch, **self.train_epoch(epoch), **self.evaluate(self.val_data)}
+        for r in range(self.start_epoch, rounds):
+            metrics = {"epoch": r, **self.train_round(r)}
+            step = min((r + 1) * self.round_steps, self.total_steps)
+            metrics.update(step=step, data_epoch=round(step / self.steps_per_pass, 4),
+                           lr=self.cfg.lr * lr_factor(step - 1, self.total_steps, self.cfg))
+            metrics.update(self.evaluate(self.val_data))
+            if self.cfg.monitor not in metrics:
+                raise ValueError(f"train.monitor {self.cfg.monitor!r} is not a validation metric of "
+                                 f"{type(self.model).__name__}; it reports {sorted(k for k in metrics if '/' in k)}")
             self.history.append(metrics)
-            score = metrics.get(self.cfg.monitor, math.inf)
-            improved = score < self.best - self.cfg.min_delta
-            if improved:
+            score = metrics[self.cfg.monitor]
+            if score < self.best - self.cfg.min_delta:
                 self.best, self.bad_epochs = score, 0
-                self._save(epoch, "best.pt")
+                self._save(r, "best.pt")
             else:
                 self.bad_epochs += 1
             stop = self.bad_epochs >= self.cfg.patience
-            self.done = stop or epoch == epochs - 1
-            # log before last.pt: a kill between the two redoes (and re-logs) this epoch on resume,
-            # rather than resuming after an epoch whose metrics never reached MLflow
+            self.done = stop or r == rounds - 1
+            # log before last.pt: a kill between the two redoes (and re-logs) this round on resume,
+            # rather than resuming after a round whose metrics never reached MLflow
             if self.on_epoch and self.is_main:
-                self.on_epoch(epoch, metrics)
-            if (epoch + 1) % self.cfg.checkpoint_every == 0 or self.done:
-                self._save(epoch, "last.pt")
+                self.on_epoch(r, metrics)
+            if (r + 1) % self.cfg.checkpoint_every == 0 or self.done:
+                self._save(r, "last.pt")
             distributed.barrier()  # DDP: rank 0's checkpoints are on disk before any rank goes on
             if self.is_main:
-                log.info("epoch %d: %s", epoch, ", ".join(f"{k}={v:.5f}" for k, v in metrics.items() if k != "epoch"))
+                log.info("round %d (step %d): %s", r, step,
+                         ", ".join(f"{k}={v:.5f}" for k, v in metrics.items() if "/" in k))
             if stop:  # the same decision on every rank: identical validation (module docstring)
                 if self.is_main:
-                    log.info("early stop at epoch %d (%s has not improved for %d epochs)", epoch,
+                    log.info("early stop at round %d, step %d (%s has not improved for %d rounds)", r, step,
                              self.cfg.monitor, self.cfg.patience)
                 break
         return {"history": self.history, "best": self.best, "epochs_run": len(self.history),
-                "seconds": time.perf_counter() - t0, "config": asdict(self.cfg)}
+                "seconds": time.perf_counter() - t0, "config": asdict(self.cfg),
+                "steps_per_pass": self.steps_per_pass, "total_steps": self.total_steps}

@@ -1,0 +1,117 @@
+"""Do the committed table values hold on another kernel path? Reruns the pipeline's evaluation (and,
+with ``--retrain``, its training first) with a forced other CPU code path, then compares every value of
+every ``reports/eval/<ds>/results.csv`` with the committed one.
+
+    python bench/stability.py                                   # evaluate again with oneDNN on AVX2 kernels
+    python bench/stability.py --env ONEDNN_MAX_CPU_ISA=AVX2 --threads 1
+    python bench/stability.py --retrain                         # train every stage again too (about an hour)
+
+Bands (issue "Models that learn"): a deterministic value (``std`` empty: one value) must stay within
+``--rel`` (5 %) of the committed one; a stochastic one (mean +- std over seeds) within ``--sigmas`` (2)
+of its committed std. Prints one JSON line per dataset and a total: the share of values in their band,
+and the worst offenders. Everything runs in a scratch copy (``--work``, default a temp dir): the
+repository's models, reports and MLflow store are not touched. Reuses the repository's prepared data
+(read only); with ``--retrain`` every ``train@`` stage of ``params.yaml`` is run again into the scratch
+models folder, so the comparison covers training and evaluation together. The action classifier of
+the generative suite is always retrained in the scratch copy (its cache is keyed by the thread count
+and the data, and is not shared).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pandas as pd
+import yaml
+from _util import ROOT, emit
+
+
+def stage(script: str, overrides: list[str], env: dict, log: Path) -> float:
+    t0 = time.perf_counter()
+    with open(log, "a") as f:
+        r = subprocess.run([sys.executable, str(ROOT / "pipelines" / script), *overrides], cwd=ROOT, env=env,
+                           stdout=f, stderr=subprocess.STDOUT)
+    if r.returncode:
+        raise SystemExit(f"{script} {' '.join(overrides)} failed (exit {r.returncode}); see {log}")
+    return time.perf_counter() - t0
+
+
+def compare(ref: pd.DataFrame, new: pd.DataFrame, rel: float, sigmas: float) -> pd.DataFrame:
+    key = ["table", "compare_to", "metric", "column", "method", "condition", "protocol"]
+    m = ref.merge(new[key + ["value"]], on=key, how="left", suffixes=("", "_new"))
+    m = m[pd.to_numeric(m["value"], errors="coerce").notna()].copy()
+    v, w, sd = (pd.to_numeric(m[c], errors="coerce") for c in ("value", "value_new", "std"))
+    stochastic = sd.notna() & (sd > 0)
+    dev = (w - v).abs()
+    m["stochastic"] = stochastic
+    m["deviation"] = (dev / v.abs().where(v.abs() > 0, float("nan"))).where(~stochastic, dev / sd)
+    m["ok"] = (~stochastic & (dev <= rel * v.abs())) | (stochastic & (dev <= sigmas * sd))
+    m.loc[w.isna(), "ok"] = False
+    return m
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--env", action="append", default=None, help="KEY=VALUE for the rerun (default "
+                    "ONEDNN_MAX_CPU_ISA=AVX2)")
+    ap.add_argument("--threads", type=int, default=None, help="torch threads of the rerun (train and eval)")
+    ap.add_argument("--retrain", action="store_true", help="train every train@ stage again first")
+    ap.add_argument("--rel", type=float, default=0.05)
+    ap.add_argument("--sigmas", type=float, default=2.0)
+    ap.add_argument("--work", default=None)
+    args = ap.parse_args()
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    extra = dict(e.split("=", 1) for e in (args.env or ["ONEDNN_MAX_CPU_ISA=AVX2"]))
+    env = {**os.environ, "PROGRESS": "0", **extra}
+    work = Path(args.work or tempfile.mkdtemp(prefix="stability-"))
+    (work / "reports").mkdir(parents=True, exist_ok=True)
+    log = work / "log.txt"
+    common = ["tracking.enabled=false", f"paths.reports={work}/reports", f"paths.samples={work}/samples",
+              f"hydra.run.dir={work}/hydra"]
+    threads = [f"eval.threads={args.threads}"] if args.threads else []
+    models = ROOT / "models"
+    timings = {}
+    if args.retrain:
+        models = work / "models"
+        t = [f"train.threads={args.threads}"] if args.threads else []
+        for key, r in params["train_runs"].items():
+            seed = [f"seed={r['seed']}"] if "seed" in r else []
+            timings[key] = stage("train.py", [f"dataset={r['dataset']}", f"model={r['model']}",
+                                              f"variant={r['variant']}", f"run_name={r['name']}",
+                                              f"paths.models={models}", *seed, *t, *common], env, log)
+    elif not models.exists():
+        raise SystemExit("no trained models here: run `make run` (or pass --retrain)")
+    rows = []
+    for ds in params["evaluate"]:
+        # the classifier cache (an evaluate output) goes to the scratch copy: the repository's stays untouched
+        over = [f"dataset={ds}", f"paths.models={models}",
+                f"dataset.evaluate.generative.cache_dir={work}/classifiers/{ds}", *threads, *common]
+        timings[f"evaluate@{ds}"] = stage("evaluate.py", over, env, log)
+        ref = pd.read_csv(ROOT / "reports" / "eval" / ds / "results.csv", keep_default_na=False)
+        new = pd.read_csv(work / "reports" / "eval" / ds / "results.csv", keep_default_na=False)
+        m = compare(ref, new, args.rel, args.sigmas)
+        m["dataset"] = ds
+        rows.append(m)
+        worst = m.sort_values("deviation", ascending=False).head(5)
+        emit(f"stability_{ds}", float(m["ok"].mean()), "share in band", 0.97, values=int(len(m)),
+             deterministic=int((~m["stochastic"]).sum()), stochastic=int(m["stochastic"].sum()),
+             worst=[f"{r.method} | {r.metric} | {r.column} | {r.protocol}: {r.value} -> {r.value_new}"
+                    for r in worst.itertuples()])
+    allm = pd.concat(rows, ignore_index=True)
+    allm.to_csv(work / "comparison.csv", index=False)
+    emit("stability_total", float(allm["ok"].mean()), "share in band", 0.97, values=int(len(allm)),
+         in_band=int(allm["ok"].sum()), env=extra, threads=args.threads, retrain=args.retrain,
+         seconds=round(sum(timings.values()), 1), comparison=str(work / "comparison.csv"))
+
+
+if __name__ == "__main__":
+    main()
