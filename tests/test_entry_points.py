@@ -1,8 +1,10 @@
-"""A stage stopped by bad input or missing data says so in ONE line and exits non-zero (no traceback)."""
+"""A stage stopped by bad input or missing data says so in ONE line and exits non-zero (no traceback);
+``motionsynth ui`` on a network address warns that the MLflow UI has no authentication."""
 
 from __future__ import annotations
 
 import os
+import socket
 import subprocess
 import sys
 
@@ -44,3 +46,17 @@ def test_missing_data_names_what_and_the_command_that_makes_it(tmp_path, script,
     assert rc == 2 and line.startswith(script.removesuffix(".py") + ": ")
     assert f"{tmp_path}/{missing}" in line and f"`{command}`" in line, line
 
+
+def test_ui_on_a_network_address_warns_that_it_has_no_authentication(capsys):
+    from motionsynth import ui
+
+    assert all(ui.exposure_warning(h) is None for h in ("127.0.0.1", "localhost", "::1", "127.0.0.2"))
+    with socket.socket() as busy:              # its port is taken: the CLI warns, then stops before any server
+        busy.bind(("0.0.0.0", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        assert ui.main(["--host", "0.0.0.0", "--port", str(port)]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("motionsynth ui: WARNING: --host 0.0.0.0 serves the MLflow UI")
+    assert "WITHOUT AUTHENTICATION" in err[0] and "basic-auth" in err[0], err
+    assert "in use" in err[1]
