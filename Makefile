@@ -25,11 +25,14 @@ run: install
 test: install
 	$(BIN)/python -m pytest -q
 
+# every benchmark the README's Benchmarks section lists (tests/test_docs.py checks the two agree)
 bench: install
 	$(BIN)/python bench/ingest.py
 	$(BIN)/python bench/pipeline.py
 	$(BIN)/python bench/train.py
 	$(BIN)/python bench/generate.py
+	$(BIN)/python bench/metrics.py
+	$(BIN)/python bench/acLSTM_units_check.py
 
 ui: install
 	$(BIN)/motionsynth ui

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -20,8 +21,37 @@ os.environ["PYTHONPATH"] = os.pathsep.join(
                    *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]))
 
 from motionsynth import tracking  # noqa: E402
+from motionsynth.data.types import USER_ERRORS  # noqa: E402
 
 log = logging.getLogger("motionsynth")
+#: exit code of a stage stopped by bad input, missing data or a config that does not fit its data
+USER_ERROR_EXIT = 2
+
+
+def one_line_errors(main: Callable) -> Callable:
+    """Wrap a stage's entry point (under ``@hydra.main``): bad input, missing data or a config that
+    does not fit its data (:data:`motionsynth.data.types.USER_ERRORS`) print ONE line,
+    ``<stage>: <message>``, on stderr and exit with :data:`USER_ERROR_EXIT`. Anything else is a bug
+    and keeps its traceback; so does every error of a multirun job (the launcher records it)."""
+
+    @functools.wraps(main)
+    def wrapped(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return main(*args, **kwargs)
+        except USER_ERRORS as e:
+            if _multirun():
+                raise
+            print(f"{Path(sys.argv[0]).stem}: {' '.join(str(e).split())}", file=sys.stderr, flush=True)
+            raise SystemExit(USER_ERROR_EXIT) from None
+
+    return wrapped
+
+
+def _multirun() -> bool:
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    return HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN
 
 
 def progress(cfg: DictConfig | dict) -> bool:

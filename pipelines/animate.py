@@ -10,13 +10,14 @@ conf/report/default.yaml `animate`.
 from pathlib import Path
 
 import hydra
-from _common import log, resolved
+from _common import log, one_line_errors, resolved
 from omegaconf import DictConfig
 
 from motionsynth.viz.animation import animate_samples
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+@one_line_errors
 def main(cfg: DictConfig) -> None:
     ds = cfg.dataset.name
     samples = Path(cfg.paths.samples) / f"{ds}.npz"

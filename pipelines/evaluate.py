@@ -8,13 +8,14 @@ data/samples/<ds>.npz (see motionsynth.evaluation).
 
 import hydra
 import yaml
-from _common import log
+from _common import log, one_line_errors
 from omegaconf import DictConfig, OmegaConf
 
 from motionsynth.evaluation import evaluate, log_to_mlflow
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+@one_line_errors
 def main(cfg: DictConfig) -> None:
     c = OmegaConf.to_container(cfg, resolve=True)
     params = yaml.safe_load(open(f"{cfg.paths.root}/params.yaml"))

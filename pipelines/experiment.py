@@ -12,13 +12,14 @@ import sys
 from pathlib import Path
 
 import yaml
-from _common import progress, write_json
+from _common import one_line_errors, progress, write_json
 
 from motionsynth.training.experiment import run_experiment
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@one_line_errors
 def main() -> None:
     logging.basicConfig(level=logging.INFO, format="[%(asctime)s][%(name)s][%(levelname)s] - %(message)s")
     params = yaml.safe_load((ROOT / "params.yaml").read_text())

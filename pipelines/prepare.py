@@ -1,13 +1,14 @@
 """DVC stage `prepare@<dataset>`: data/interim/<dataset> -> data/processed/<dataset>/<representation>/."""
 
 import hydra
-from _common import log, start, resolved, track, write_json
+from _common import log, one_line_errors, resolved, start, track, write_json
 from omegaconf import DictConfig
 
 from motionsynth.data.prepare import prepare
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+@one_line_errors
 def main(cfg: DictConfig) -> None:
     start(cfg)
     ds = cfg.dataset

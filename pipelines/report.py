@@ -12,13 +12,14 @@ from pathlib import Path
 
 import hydra
 import yaml
-from _common import log, resolved
+from _common import log, one_line_errors, resolved
 from omegaconf import DictConfig
 
 from motionsynth.evaluation.report import log_report, write_report
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+@one_line_errors
 def main(cfg: DictConfig) -> None:
     root = Path(cfg.paths.root)
     datasets = list(yaml.safe_load((root / "params.yaml").read_text()).get("evaluate") or [])

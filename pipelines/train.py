@@ -14,7 +14,7 @@ import shutil
 from pathlib import Path
 
 import hydra
-from _common import log, progress, rank_zero_hydra_argv, write_json
+from _common import log, one_line_errors, progress, rank_zero_hydra_argv, write_json
 from omegaconf import DictConfig, OmegaConf
 
 from motionsynth.sweeps import job_context
@@ -23,6 +23,7 @@ from motionsynth.training.run import CURVE, run, run_name
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+@one_line_errors
 def main(cfg: DictConfig) -> float:
     if cfg.get("model") is None:
         raise SystemExit("choose a model: python pipelines/train.py model=<name> (one of conf/model/*.yaml)")

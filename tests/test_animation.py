@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from motionsynth.data.types import MissingDataError
 from motionsynth.viz.animation import (AnimationError, animate_samples, bone_pairs, camera_basis, frame_indices,
                                        project, read_gif, read_mp4)
 
@@ -90,7 +91,7 @@ def test_camera_geometry():
 
 
 def test_bad_inputs_are_clear_errors(tmp_path):
-    with pytest.raises(AnimationError, match="not found"):
+    with pytest.raises(MissingDataError, match=r"none.npz is missing: .*`dvc repro evaluate@none`"):
         animate_samples(tmp_path / "none.npz", tmp_path / "o")
     np.savez(tmp_path / "nometa.npz", **{"m:ground truth": walk(10, 30.0)[None]}, meta=np.array(json.dumps({})))
     with pytest.raises(AnimationError, match=r"lacks \['fps', 'parents'\]"):

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
 import zipfile
 
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import archive_path, dataset_cfg, make_zip
+from conftest import REPO, archive_path, compose_cfg, dataset_cfg, make_zip
 from test_bvh import HAND
 
 from motionsynth.data.archive import Archive, unsafe_reason
@@ -135,3 +139,109 @@ def test_store_round_trip(tmp_path):
     seq = st.sequence(1)
     assert seq.positions.shape[1] == 50 and seq.body_mask.shape[1] == 2
     assert np.isfinite(seq.positions).all()
+
+
+# ----------------------------------------------------------------------------- zip bombs
+
+def _deflated_zip(path, members):
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        for name, data in members.items():
+            z.writestr(name, data)
+    return path
+
+
+def test_oversized_and_zip_bomb_members_are_rejected_unread_and_counted(tmp_path):
+    limits = compose_cfg(tmp_path, "bandai1")["ingest"]          # the configured defaults
+    assert limits["max_compression_ratio"] >= 100 and limits["max_member_mb"] >= 512
+    bomb = b"0 " * (8 * 2**20)                                   # 16 MB of one token: deflates ~1000:1
+    path = _deflated_zip(tmp_path / "bomb.zip", {
+        "cfg/content.txt": "toy_walk\ntoy_run\n", "cfg/style.txt": "toy_normal\ntoy_happy\n",
+        "data/a.bvh": bvh(5), "data/a.json": LABEL,
+        "data/bomb.bvh": bvh(5).encode() + bomb, "data/bomb.json": LABEL})
+    s = ingest(CFG, path, tmp_path / "out", progress=False, limits=limits)
+    reasons = {r["member"]: r["reason"] for r in s["rejected_items"]}
+    assert (s["seen"], s["accepted"], s["rejected"], s["filtered"]) == (2, 1, 1, 0)
+    assert "compression ratio" in reasons["data/bomb.bvh"] and "max_compression_ratio" in reasons["data/bomb.bvh"]
+    # the size cap (1 MB here): checked first, the setting named
+    s = ingest(CFG, path, tmp_path / "out2", progress=False, limits={**limits, "max_member_mb": 1})
+    assert (s["accepted"], s["rejected"]) == (1, 1)
+    assert s["rejected_items"][0]["reason"].startswith("uncompressed size 16.0 MB exceeds the limit of 1.0 MB "
+                                                       "(ingest.max_member_mb)")
+
+
+def test_member_caps_apply_before_decompressing(tmp_path):
+    path = _deflated_zip(tmp_path / "b.zip", {"x.txt": b"0" * (4 * 2**20), "y.txt": b"tiny"})
+    with Archive(path, max_member_bytes=2**20, max_ratio=50) as ar:
+        with pytest.raises(Exception, match=r"x.txt: uncompressed size 4.0 MB exceeds the limit of 1.0 MB"):
+            ar.read("x.txt")
+        assert ar.read("y.txt") == b"tiny"
+    with Archive(path, max_ratio=50) as ar:
+        with pytest.raises(Exception, match=r"x.txt: compression ratio \d+:1 exceeds the limit of 50:1"):
+            ar.read("x.txt")
+
+
+# ----------------------------------------------------------------------------- atomic store
+
+KILLABLE = r'''
+import os, sys, time
+import numpy as np
+sys.path[:0] = [{src!r}, {tests!r}]
+from conftest import archive_path, dataset_cfg
+from motionsynth.data.ingest import ingest
+
+hook, out, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
+def pause(what):
+    print("PAUSED", what, flush=True)
+    time.sleep(600)
+if hook == "mid-write":        # stop for good right after the store's first array is written
+    save = np.save
+    np.save = lambda path, *a, **k: (save(path, *a, **k), pause(path))
+elif hook == "mid-swap":       # ... or between moving the previous store aside and renaming the new one in
+    replace = os.replace
+    os.replace = lambda src, dst: (replace(src, dst), ".old-" in str(dst) and pause(dst))
+ingest(dataset_cfg("bandai1"), archive_path("bandai1"), out, max_items=n, progress=False)
+print("DONE", flush=True)
+'''
+
+
+def _ingest_killed_at(tmp_path, hook: str, out, n: int) -> str:
+    """Run ingest in a subprocess; with a hook, kill -9 it where the hook pauses; returns where."""
+    code = KILLABLE.format(src=str(REPO / "src"), tests=str(REPO / "tests"))
+    p = subprocess.Popen([sys.executable, "-c", code, hook, str(out), str(n)], stdout=subprocess.PIPE, text=True)
+    line = p.stdout.readline()
+    if hook != "none":
+        assert line.startswith("PAUSED"), line
+        os.kill(p.pid, signal.SIGKILL)
+    p.wait(timeout=60)
+    p.stdout.close()
+    assert (p.returncode == -signal.SIGKILL) if hook != "none" else (p.returncode == 0 and line == "DONE\n")
+    return line
+
+
+def _snapshot(d):
+    return {p.name: p.read_bytes() for p in sorted(d.iterdir())}
+
+
+def test_killed_ingest_leaves_the_previous_store_or_none(tmp_path):
+    out = tmp_path / "interim" / "bandai1"
+    _ingest_killed_at(tmp_path, "none", out, 4)                   # the previous, complete store
+    before = _snapshot(out)
+    assert len(Store.open(out)) == 4 and {"meta.parquet", "positions.npy", "classes.json"} <= set(before)
+
+    # killed while writing the new store: the previous one is there, byte for byte
+    where = _ingest_killed_at(tmp_path, "mid-write", out, 8)
+    assert ".bandai1.tmp-" in where and where.strip().endswith("positions.npy")
+    assert _snapshot(out) == before and len(Store.open(out)) == 4
+    partial = [p for p in out.parent.iterdir() if p.name.startswith(".bandai1.tmp-")]
+    assert len(partial) == 1 and not (partial[0] / "meta.parquet").exists()   # what the kill left: hidden, partial
+
+    # killed between the two renames: no store at all (never a partial one)
+    _ingest_killed_at(tmp_path, "mid-swap", out, 8)
+    assert not out.exists()
+    with pytest.raises(FileNotFoundError, match="dvc repro ingest@bandai1"):
+        Store.open(out)
+
+    # the next run cleans up after the killed ones and writes a complete store
+    _ingest_killed_at(tmp_path, "none", out, 8)
+    assert len(Store.open(out)) == 8
+    assert [p.name for p in out.parent.iterdir()] == ["bandai1"]

@@ -61,6 +61,32 @@ def artifacts_destination(root: str | Path, backend_store_uri: str) -> Path:
     return tracking.sqlite_artifacts(backend_store_uri) or Path(root).resolve() / "mlartifacts"
 
 
+def is_loopback(host: str) -> bool:
+    """Does ``host`` (an address or a name) bind to this machine only? A name counts when every
+    address it resolves to is a loopback one; an unresolvable name does not."""
+    import ipaddress
+
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        pass
+    try:
+        addrs = {info[4][0] for info in socket.getaddrinfo(host, None)}
+    except OSError:
+        return False
+    return bool(addrs) and all(ipaddress.ip_address(a.split("%")[0]).is_loopback for a in addrs)
+
+
+def exposure_warning(host: str) -> str | None:
+    """The warning ``motionsynth ui --host HOST`` prints when HOST is reachable from other machines."""
+    if is_loopback(host):
+        return None
+    return (f"motionsynth ui: WARNING: --host {host} serves the MLflow UI and REST API to other machines "
+            "WITHOUT AUTHENTICATION: anyone who reaches the port can read, change and delete every run. "
+            "For a team, put authentication in front of it (MLflow's basic-auth app or a reverse proxy; "
+            "README: 'A team tracking server'), or keep the default 127.0.0.1 and use an SSH tunnel.")
+
+
 def free_port(host: str = "127.0.0.1") -> int:
     """A port nobody listens on now (the kernel's pick for a socket bound to port 0)."""
     with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as s:
@@ -200,7 +226,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "this machine and prints its address; Ctrl-C stops it.")
     ap.add_argument("--port", type=int, default=None, help="port (default: a free one)")
     ap.add_argument("--host", default="127.0.0.1",
-                    help="interface to bind (default 127.0.0.1: this machine only)")
+                    help="interface to bind (default 127.0.0.1: this machine only; any other serves the "
+                         "runs to the network with no authentication: see the README's team-server section)")
     ap.add_argument("--backend-store-uri", default=None,
                     help="the store to show (default: sqlite:///<project>/mlflow.db, or a local "
                          "$MLFLOW_TRACKING_URI)")
@@ -209,6 +236,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=120, help="seconds to wait for the server to answer")
     args = ap.parse_args(list(argv) if argv is not None else None)
     root = Path(args.root or os.environ.get("MOTIONSYNTH_ROOT") or Path(__file__).resolve().parents[2])
+    warning = exposure_warning(args.host)
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
 
     def on_signal(signum, frame):  # leave through the context manager, which stops the server
         raise KeyboardInterrupt

@@ -32,7 +32,7 @@ from pathlib import PurePosixPath
 import numpy as np
 import pandas as pd
 
-from .archive import Archive
+from .archive import Archive, matches
 from .readers import DatasetReader
 from .types import InputError, Item, Rejected, Sequence, Skeleton
 
@@ -456,13 +456,20 @@ class BvhReader(DatasetReader):
         motion is rejected, a motion without its label too.
     content_labels / style_labels: text members, one name per line (0-based).
     label_prefix: stripped from label names (Bandai: ``dataset-1_``).
-    classes: folder labels' class order; default sorted folder names.
+    classes: folder labels' classes, in label order; default the sorted folder names. A motion in
+        another folder is filtered out (counted, not read).
     end_sites: keep End Sites as joints (CMU's 57 joints include them).
     scale: file units to metres.
     template: a member whose hierarchy is the dataset's skeleton (CMU: ``standard.bvh``).
     name_fields: split a stem on ``_`` into these meta fields (Bandai:
         ``[corpus, content, style, take]``).
+
+    ``.bvh`` members that ``pattern`` does not match (the template aside) are filtered out.
+    Class ids are the folder index or the label's ``content`` index; :meth:`classes` names
+    those the archive's items carry (a label file without its motion included).
     """
+
+    format_pattern = "**/*.bvh"
 
     def __init__(self, pattern: str, labels: str = "folder", label_pattern: str | None = None,
                  content_labels: str | None = None, style_labels: str | None = None,
@@ -478,6 +485,7 @@ class BvhReader(DatasetReader):
         self.name_fields = list(name_fields or [])
         self.subject_field = subject_field
         self._names: dict[str, list[str]] = {}
+        self._labels: dict[str, tuple[int, int] | InputError] = {}  # label member -> (content, style)
         self._fps: dict[str, list[float]] = {}  # header fps per class, for notes()
 
     # -- items
@@ -491,8 +499,9 @@ class BvhReader(DatasetReader):
                 folder = m.split("/")[0] if "/" in m else ""
                 key = str(PurePosixPath(m).with_suffix("")).replace("/", "_")
                 if folder not in classes:
-                    rejected.append(Rejected(m, f"class folder {folder!r} is not one of {classes}"))
-                    continue
+                    if not self.classes:  # a motion outside any class folder
+                        rejected.append(Rejected(m, f"class folder {folder!r} is not one of {classes}"))
+                    continue  # else a folder the config leaves out: filtered (why_filtered)
                 items.append(Item(key, {"motion": m}, {"label": classes.index(folder), "label_name": folder}))
             return items, rejected
         labels = archive.glob(self.label_pattern or "")
@@ -545,14 +554,25 @@ class BvhReader(DatasetReader):
         self._fps.setdefault(str(meta.get("label_name", "")), []).append(round(bvh.fps, 3))
         return seq, bvh.skeleton(end_sites=self.end_sites, scale=self.scale)
 
-    def _read_label(self, archive: Archive, member: str) -> dict:
+    def _label(self, archive: Archive, member: str) -> tuple[int, int]:
+        """``(content, style)`` of a label file (parsed once: :meth:`classes` reads them all)."""
         import json
 
-        try:
-            lab = json.loads(archive.text(member))
-            content, style = int(lab["content"]), int(lab["style"])
-        except (ValueError, KeyError, TypeError) as e:
-            raise InputError(member, f"malformed label JSON: {e}") from None
+        if member not in self._labels:
+            try:
+                lab = json.loads(archive.text(member))
+                self._labels[member] = (int(lab["content"]), int(lab["style"]))
+            except InputError as e:
+                self._labels[member] = e
+            except (ValueError, KeyError, TypeError) as e:
+                self._labels[member] = InputError(member, f"malformed label JSON: {e}")
+        got = self._labels[member]
+        if isinstance(got, InputError):
+            raise got
+        return got
+
+    def _read_label(self, archive: Archive, member: str) -> dict:
+        content, style = self._label(archive, member)
         contents = self._label_names(archive, self.content_labels)
         styles = self._label_names(archive, self.style_labels)
         if contents and not 0 <= content < len(contents):
@@ -561,6 +581,34 @@ class BvhReader(DatasetReader):
             raise InputError(member, f"style index {style} outside the {len(styles)} labels")
         return {"label": content, "label_name": contents[content] if contents else str(content),
                 "style": styles[style] if styles else str(style), "style_id": style}
+
+    def auxiliary_members(self) -> set[str]:
+        return {self.template} if self.template else set()
+
+    def why_filtered(self, member: str) -> str:
+        folder = member.split("/")[0] if "/" in member else ""
+        if self.labels == "folder" and self.classes and matches(member, self.pattern) and folder not in self.classes:
+            return f"class folder {folder!r} is not in reader.classes"
+        return super().why_filtered(member)
+
+    def class_names(self, archive: Archive, items: list[Item]) -> dict[int, str]:
+        """Folder labels: the listed items' classes. JSON labels: the content of every label file
+        ``label_pattern`` matches, with or without its motion (unreadable ones are left to ``read``)."""
+        if self.labels == "folder":
+            return super().class_names(archive, items)
+        try:
+            names = self._label_names(archive, self.content_labels)
+        except InputError:
+            names = []
+        out: dict[int, str] = {}
+        for member in archive.glob(self.label_pattern or ""):
+            try:
+                content = self._label(archive, member)[0]
+            except InputError:
+                continue
+            if not names or 0 <= content < len(names):
+                out[content] = names[content] if names else str(content)
+        return out
 
     def notes(self, archive: Archive) -> list[str]:
         """Frame-rate statements in text members, checked against the BVH headers read."""

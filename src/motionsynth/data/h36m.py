@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from .archive import Archive
+from .archive import Archive, matches
 from .readers import DatasetReader
 from .types import InputError, Item, Rejected, Sequence, Skeleton
 
@@ -211,19 +211,21 @@ class H36MReader(DatasetReader):
     Parameters (from ``conf/dataset/h36m.yaml``, ``reader:`` section):
 
     actions: the actions that are items, in label order (label = index here). Files of
-        other actions are not items. The action is the file stem without an optional
-        trailing ``" N"`` and must equal a name here exactly (``WalkDog`` is not ``Walking``).
+        other actions are not items: they are counted as filtered out. The action is the file
+        stem without an optional trailing ``" N"`` and must equal a name here exactly
+        (``WalkDog`` is not ``Walking``).
     joints: source joint index (0..31) -> name, in the kept order; the first is the root.
         Default :data:`H36M_JOINTS`.
     parents: joint name -> parent name; a joint without an entry is a root. Every parent
         must come before its child in ``joints``. Default :data:`H36M_PARENTS`.
-    subjects: subject numbers to keep (default: every ``S<N>`` folder).
-    pattern: archive members that are motions.
+    subjects: subject numbers to keep (default: every ``S<N>`` folder); others are filtered out.
+    pattern: archive members that are motions (other ``.h5`` members but the cameras: filtered out).
     cameras_member: the ``cameras.h5`` member.
     fps: frame rate of the source (50 Hz).
     """
 
     expected_trials = 2
+    format_pattern = "**/*.h5"
 
     def __init__(self, actions: list[str], joints: Mapping[int, str] | None = None,
                  parents: Mapping[str, str] | None = None, subjects: list[int] | None = None,
@@ -305,6 +307,18 @@ class H36MReader(DatasetReader):
         items.sort(key=lambda it: (it.meta["subject_id"], it.meta["label"],
                                    int(it.meta["trial"]) if it.meta["trial"] else -1, it.member))
         return items, rejected
+
+    def auxiliary_members(self) -> set[str]:
+        return {self.cameras_member}
+
+    def why_filtered(self, member: str) -> str:
+        parsed = self._parse(member) if matches(member, self.pattern) else None
+        if parsed is None or isinstance(parsed, str):
+            return super().why_filtered(member)
+        sid, action, _ = parsed
+        if action not in self.actions:
+            return f"action {action!r} is not in reader.actions"
+        return f"subject S{sid} is not in reader.subjects"
 
     def _cached_items(self, archive: Archive) -> list[Item]:
         key = _archive_key(archive)

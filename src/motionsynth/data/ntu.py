@@ -356,6 +356,8 @@ class NTUReader(DatasetReader):
     when bodies were dropped, ``warnings`` (also returned by :meth:`notes`).
     """
 
+    format_pattern = "**/*.skeleton"
+
     def __init__(self, pattern: str = "**/*.skeleton", max_bodies: int = 2, fps: float = 30.0,
                  joint_names: list[str] | None = None, parents: list[int] | None = None,
                  action_names: dict[int, str] | None = None):

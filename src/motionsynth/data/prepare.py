@@ -34,7 +34,7 @@ from .types import Skeleton
 log = logging.getLogger(__name__)
 
 META_COLS = ["sequence_id", "source_id", "dataset", "member", "subject", "view", "label",
-             "label_name", "style", "frames", "offset", "fps"]
+             "label_raw", "label_name", "style", "frames", "offset", "fps"]
 
 
 def prepare(store_dir: str | Path, out_dir: str | Path, representations: Mapping[str, Any]) -> dict[str, Any]:
@@ -50,14 +50,18 @@ def prepare(store_dir: str | Path, out_dir: str | Path, representations: Mapping
             raise ValueError(f"prepare.representations.{name}.space must be 3d or 2d, got {space!r}")
         fn = _prepare_3d if space == "3d" else _prepare_2d
         summary["representations"][name] = fn(store, Path(out_dir) / name, rep)
-        # the representation's own description, read by split and training
+        # the representation's own description and the store's class table, read by split and training
         (Path(out_dir) / name / "representation.json").write_text(json.dumps(
             {k: v for k, v in rep.items() if k != "clips"} | {"space": space}, indent=1))
+        if store.classes is not None:
+            (Path(out_dir) / name / "classes.json").write_text(json.dumps(store.classes, indent=1))
     summary["seconds"] = round(time.perf_counter() - t0, 3)
     return summary
 
 
-def _select(skel: Skeleton, rep: Mapping[str, Any]) -> tuple[np.ndarray, Skeleton]:
+def select_joints(skel: Skeleton, rep: Mapping[str, Any]) -> tuple[np.ndarray, Skeleton]:
+    """The joints a representation keeps (``joints``, minus ``drop_joints``): their indices in
+    ``skel`` and the reduced skeleton."""
     names = list(rep.get("joints") or skel.names)
     drop = set(rep.get("drop_joints") or [])
     unknown = [j for j in list(drop) + names if j not in skel.names]
@@ -71,7 +75,7 @@ def _prepare_3d(store: Store, out: Path, rep: Mapping[str, Any]) -> dict[str, An
     skel = store.skeleton
     if skel.hips is None:
         raise ValueError("3d representation needs skeleton.hips in the dataset config")
-    idx, sub = _select(skel, rep)
+    idx, sub = select_joints(skel, rep)
     fps = float(rep["fps"])
     pos_all = store.array("positions")
     mask_all = store.array("body_mask")
@@ -104,7 +108,7 @@ def _prepare_2d(store: Store, out: Path, rep: Mapping[str, Any]) -> dict[str, An
     v2d, depth = store.array("views2d"), store.array("view_depth")
     if v2d is None:
         raise ValueError(f"{store.root}: 2d representation needs views2d from ingest")
-    idx, sub = _select(skel, rep)
+    idx, sub = select_joints(skel, rep)
     center = skel.index(rep.get("center") or skel.root)
     fps = float(rep["fps"])
     view_names = _view_names(store, v2d.shape[1])
@@ -150,7 +154,8 @@ def _finish(out: Path, rows: list[dict], arrays: dict[str, list[np.ndarray]], sk
     meta["offset"] = np.concatenate([[0], np.cumsum(meta["frames"].to_numpy())[:-1]]).astype(np.int64) if len(meta) else []
     for col in ("subject", "view", "style", "label_name", "member", "dataset", "source_id"):
         meta[col] = meta[col].astype(str)
-    meta["label"] = pd.to_numeric(meta["label"], errors="coerce").fillna(-1).astype(np.int64)
+    for col in ("label", "label_raw"):
+        meta[col] = pd.to_numeric(meta[col], errors="coerce").fillna(-1).astype(np.int64)
     for name, parts in arrays.items():
         np.save(out / f"{name}.npy", np.concatenate(parts, axis=0).astype(np.float32) if parts else np.zeros((0,)))
     meta.to_parquet(out / "meta.parquet", index=False)

@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from .normalise import depth_scaled
+from .types import MissingDataError
 
 SPLITS = ("train", "val", "test", "unused")
 
@@ -130,7 +131,8 @@ def split_dataset(processed: str | Path, out: str | Path, cfg: Mapping[str, Any]
     summary: dict[str, Any] = {}
     reps = sorted(p.parent for p in processed.glob("*/meta.parquet"))
     if not reps:
-        raise FileNotFoundError(f"{processed}: no prepared representation (run prepare first)")
+        raise MissingDataError(f"{processed}: no prepared representation there: "
+                               f"`dvc repro prepare@{processed.name}` makes it")
     for rep_dir in reps:
         meta = pd.read_parquet(rep_dir / "meta.parquet")
         wins = {p.stem.removeprefix("windows_"): pd.read_parquet(p) for p in sorted(rep_dir.glob("windows_*.parquet"))}

@@ -30,6 +30,19 @@ class InputError(ValueError):
         super().__init__(f"{member}: {problem}")
 
 
+class MissingDataError(FileNotFoundError):
+    """A stage's input is not there: the message names the path and the command that makes it."""
+
+
+class ConfigError(ValueError):
+    """The config disagrees with the data: the message names the config field and the values found."""
+
+
+#: the errors a stage's entry point prints as one line (``pipelines/_common.py: one_line_errors``):
+#: bad input, missing input, a config that does not fit its data. Anything else is a bug: traceback.
+USER_ERRORS = (InputError, MissingDataError, ConfigError)
+
+
 @dataclass(frozen=True)
 class Rejected:
     """One rejected input item: the archive member (or item key) and why."""

@@ -1,7 +1,10 @@
 """Suite ``locomotion``: VAE-LSTM paper (Habibie et al. 2017), Tables 1 and 2, on the test split.
 
 Our data: ``bandai2_locomotion`` (Bandai-Namco dataset 2, locomotion contents) stands in for the
-paper's Edinburgh locomotion set, which is not available here. Test windows are the
+paper's Edinburgh locomotion set, which is not available here: its config says so
+(``evaluate.locomotion.compare_to``, the published dataset string its rows join). A dataset
+without ``compare_to`` stands in for nothing: its rows get ``compare_to = "<ds> (ours)"``, tables
+of their own, never joined with the published rows. Test windows are the
 ``vae_lstm`` family: 240 frames (4 s) at 60 fps, poses of 21 joints, root-relative and
 facing-normalised (``pose``), the root trajectory ``(x, z, heading)`` and the controls
 ``(forward, sideways, turn)`` (:mod:`motionsynth.data.controls`). Windows: ``eval.max_windows``
@@ -78,7 +81,8 @@ the first seed) in global positions (metres) ``[N, 240, 21, 3]``.
 
 Options (``conf/dataset/<ds>.yaml: evaluate.locomotion``): ``family`` (window family,
 ``vae_lstm``), ``frames``, ``reduction`` (see errors.py), ``vae_trajectory``
-(``ground_truth`` | ``integrate``), ``pose_seed_frames`` (Table-2 zero-velocity seed, 4).
+(``ground_truth`` | ``integrate``), ``pose_seed_frames`` (Table-2 zero-velocity seed, 4),
+``compare_to`` (the published dataset this one stands in for; none: ``"<ds> (ours)"``).
 """
 
 from __future__ import annotations
@@ -100,7 +104,6 @@ from .context import EvalContext
 log = logging.getLogger(__name__)
 
 PAPER = "habibie2017_vae_lstm"
-COMPARE_TO = "Edinburgh locomotion (test, 20 sequences)"
 T1 = {"table": "Table 1", "metric": "motion prediction error", "key": "table1_motion", "curve": "motion_error_vs_frame"}
 T2 = {"table": "Table 2", "metric": "pose prediction error (root-relative)", "key": "table2_pose",
       "curve": "pose_error_vs_frame"}
@@ -162,14 +165,15 @@ def pose_error(pred_pose: np.ndarray, gt_pose: np.ndarray, frames: Any, root_ind
 class _Table:
     """Collects one table's per-method results (rows + curve)."""
 
-    def __init__(self, ctx: EvalContext, spec: dict, frames: list[int], n: int, note_tail: str):
+    def __init__(self, ctx: EvalContext, spec: dict, frames: list[int], n: int, note_tail: str, compare_to: str):
         self.ctx, self.spec, self.frames, self.n, self.note_tail = ctx, spec, frames, n, note_tail
+        self.compare_to = compare_to
 
     def add(self, method: str, per_seed: list[np.ndarray], *, condition: str, run: str, note: str,
             kind: str = "model") -> None:
         """``per_seed``: one ``[B, T]`` per-window, per-frame array per seed (one for deterministic)."""
         curves = np.stack([v.mean(axis=0) for v in per_seed])                  # [seeds, T]
-        common = dict(paper=PAPER, table=self.spec["table"], compare_to=COMPARE_TO, metric=self.spec["metric"],
+        common = dict(paper=PAPER, table=self.spec["table"], compare_to=self.compare_to, metric=self.spec["metric"],
                       method=method, condition=condition, n=self.n, run=run, kind=kind)
         stochastic = len(per_seed) > 1
         for f in self.frames:
@@ -185,14 +189,15 @@ class _Table:
 
 def _options(ctx: EvalContext) -> dict[str, Any]:
     o = dict(ctx.options.get("locomotion") or {})
-    unknown = set(o) - {"family", "frames", "reduction", "vae_trajectory", "pose_seed_frames"}
+    unknown = set(o) - {"family", "frames", "reduction", "vae_trajectory", "pose_seed_frames", "compare_to"}
     if unknown:
         raise ValueError(f"conf/dataset/{ctx.name}.yaml: evaluate.locomotion has unknown option(s) {sorted(unknown)}")
     opts = {"family": o.get("family", ctx.dataset_cfg["training"].get("family", "vae_lstm")),
             "frames": [int(f) for f in o.get("frames", VAE_LSTM_FRAMES)],
             "reduction": o.get("reduction", "mse"),
             "vae_trajectory": o.get("vae_trajectory", "ground_truth"),
-            "pose_seed_frames": int(o.get("pose_seed_frames", 4))}
+            "pose_seed_frames": int(o.get("pose_seed_frames", 4)),
+            "compare_to": o.get("compare_to")}
     if opts["reduction"] not in REDUCTIONS:
         raise ValueError(f"evaluate.locomotion.reduction must be one of {REDUCTIONS}, got {opts['reduction']!r}")
     if opts["vae_trajectory"] not in TRAJECTORIES:
@@ -255,12 +260,14 @@ def run(ctx: EvalContext) -> None:
     seed_of: dict[str, int] = {}
 
     unit = UNITS[red]
+    compare_to = opts["compare_to"] or f"{ctx.name} (ours)"
+    role = f"stand-in for {opts['compare_to']}" if opts["compare_to"] else "no published counterpart"
     tail = (f"{REDUCTION_WORDS[red]} (errors.py reduction '{red}'), {unit}; mean over {n} test windows of "
-            f"{ctx.name} ({T} frames at {fps:g} fps, stand-in for the Edinburgh set); frame = 1-based frame of "
+            f"{ctx.name} ({T} frames at {fps:g} fps, {role}); frame = 1-based frame of "
             f"the clip; the paper does not state its units: absolute values are not comparable with its numbers")
-    t1 = _Table(ctx, T1, frames, n, "global positions; " + tail)
+    t1 = _Table(ctx, T1, frames, n, "global positions; " + tail, compare_to)
     t2 = _Table(ctx, T2, frames, n, f"positions relative to the {skel.root or 'root'} joint, facing-normalised; "
-                + tail)
+                + tail, compare_to)
 
     def motion(pose_phys, root):
         return motion_error(pose_phys, root, gt_pose, gt_root, all_frames, red)

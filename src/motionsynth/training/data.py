@@ -18,6 +18,7 @@ import torch
 
 from ..data.clips import gather, windows
 from ..data.normalise import Normaliser
+from ..data.types import ConfigError, MissingDataError
 from ..models.base import Batch, DataSpec
 
 
@@ -27,11 +28,17 @@ class WindowData:
     def __init__(self, rep_dir: str | Path, split_dir: str | Path, protocol: str, family: str, split: str,
                  num_classes: int | None = None, controls: bool = True):
         rep_dir, split_dir = Path(rep_dir), Path(split_dir)
+        ds = rep_dir.parent.name
+        needs = (rep_dir / "representation.json", split_dir / f"{protocol}.csv", split_dir / f"{protocol}_stats.npz")
+        for need in needs:
+            if not need.exists():  # split@ds runs prepare@ds (and ingest@ds) first where they are not up to date
+                raise MissingDataError(f"{need} is missing: `dvc repro split@{ds}` makes it "
+                                       f"(with the rest of {ds}'s prepared data and splits)")
         self.rep = json.loads((rep_dir / "representation.json").read_text())
         wpath = rep_dir / f"windows_{family}.parquet"
         if not wpath.exists():
-            raise FileNotFoundError(f"{rep_dir}: no '{family}' windows; prepare.representations.*.clips "
-                                    f"defines {[p.stem[8:] for p in rep_dir.glob('windows_*.parquet')]}")
+            raise ConfigError(f"{rep_dir}: no '{family}' windows; conf/dataset/{ds}.yaml: prepare.representations."
+                              f"{rep_dir.name}.clips defines {[p.stem[8:] for p in rep_dir.glob('windows_*.parquet')]}")
         self.meta = pd.read_parquet(rep_dir / "meta.parquet")
         table = pd.read_csv(split_dir / f"{protocol}.csv").set_index("sequence_id")["split"]
         w = pd.read_parquet(wpath)
@@ -48,7 +55,9 @@ class WindowData:
         self.offsets = self.meta["offset"].to_numpy()
         self.frames = self.meta["frames"].to_numpy()
         labels = self.meta["label"].to_numpy()
-        self.num_classes = int(num_classes if num_classes is not None else max(labels.max() + 1, 0))
+        self.classes = class_table(rep_dir, num_classes)
+        self.num_classes = (len(self.classes) if self.classes is not None else
+                            int(num_classes if num_classes is not None else max(labels.max() + 1, 0)))
         self.labels = labels
         self.every = int(self.windows["every"].iloc[0]) if len(self.windows) else 1
         self.length = int(self.windows["length"].iloc[0]) if len(self.windows) else 0
@@ -100,6 +109,22 @@ class WindowData:
         batches = [order[i:i + batch_size] for i in range(0, stop, batch_size)]
         for b in batches[rank::world]:
             yield self.batch(b)
+
+
+def class_table(rep_dir: str | Path, num_classes: int | None = None) -> list[dict] | None:
+    """The prepared data's class table (``classes.json``, from ingest; ``None`` for data prepared
+    before it existed). A configured ``training.num_classes`` must equal its length: else a
+    :class:`ConfigError` names the field and the classes found."""
+    path = Path(rep_dir) / "classes.json"
+    if not path.exists():
+        return None
+    classes = json.loads(path.read_text())
+    if num_classes is not None and int(num_classes) != len(classes):
+        shown = ", ".join(f"{c['name']} (raw {c['raw']})" for c in classes[:12]) + (", ..." if len(classes) > 12 else "")
+        raise ConfigError(f"conf/dataset/{Path(rep_dir).parent.name}.yaml: training.num_classes is {num_classes}, "
+                          f"but the data holds {len(classes)} classes: {shown or 'none'}; "
+                          f"set it to {len(classes)} or leave it out (null: taken from the data)")
+    return classes
 
 
 def open_split(processed: str | Path, splits: str | Path, dataset: str, training: Mapping, family: str,

@@ -54,6 +54,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ..data.types import MissingDataError
+
 GROUND_TRUTH = "ground truth"
 
 
@@ -488,7 +490,8 @@ def animate_samples(samples: Path, out_dir: Path, opts: Mapping[str, Any] | None
     o = {**DEFAULTS, "formats": ["gif", "mp4"], "max_sequences": None, **dict(opts or {})}
     samples, out_dir = Path(samples), Path(out_dir)
     if not samples.exists():
-        raise AnimationError(f"{samples} not found: the evaluate stage writes it (dvc repro evaluate@<dataset>)")
+        raise MissingDataError(f"{samples} is missing: the evaluate stage writes it "
+                               f"(`dvc repro evaluate@{samples.stem}`)")
     formats = [str(f).lower().lstrip(".") for f in o["formats"]]
     if not formats or set(formats) - {"gif", "mp4"}:
         raise AnimationError(f"animate.formats must list gif and/or mp4, got {o['formats']!r}")
