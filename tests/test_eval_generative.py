@@ -81,6 +81,27 @@ def test_deterministic_models_are_one_value_with_a_note(built):
         assert "0 by construction" in r.note
 
 
+def test_sample_spread_is_zero_for_deterministic_methods(built):
+    t = built["table"]
+    for method in METHODS:
+        r = cell(t, method, gen.SPREAD)
+        assert r.value == 0.0 and r.note.startswith("deterministic") and r.key == "generative/sample_spread"
+
+
+def test_sample_spread_known_answer():
+    """Two draws of one window: one joint 2 cm apart along x (root-relative), the others equal."""
+    rng = np.random.default_rng(0)
+    base = rng.standard_normal((1, 1, 10, 4, 3))                            # [S=1, N=1, T=10, J=4, 3]
+    draws = np.concatenate([base, base], axis=0)
+    draws[1, :, :, 2, 0] += 0.02
+    # per frame, joint 2: std over the 2 draws of a 2-cm difference = 1 cm; joints 0, 1, 3: 0
+    assert gen.sample_spread(draws, root_index=0, start=0) == pytest.approx(0.01 / 4)
+    moved_root = draws.copy()
+    moved_root[1] += 0.5                                                     # a global shift is no spread
+    assert gen.sample_spread(moved_root, root_index=0, start=0) == pytest.approx(0.01 / 4)
+    assert gen.sample_spread(draws, root_index=0, start=5) == pytest.approx(0.01 / 4)
+
+
 def test_real_fid_is_small_against_noise(built):
     t = built["table"]
     real, noise = cell(t, gen.REAL_ROW, "FID").value, cell(t, gen.NOISE_ROW, "FID").value

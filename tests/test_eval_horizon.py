@@ -19,8 +19,14 @@ HORIZONS = [80, 160, 240, 320, 400, 480, 560, 640]
 def suite(tmp_path_factory, one_thread):
     r = tmp_path_factory.mktemp("horizon")
     runs = build_eval_root(r, DS, {"glogen": ("glogen", "none"), "locgen": ("locgen", "none"),
-                                   "seq2seq": ("seq2seq", "none"), "zero_velocity": ("zero_velocity", "none")},
+                                   "seq2seq": ("seq2seq", "none"), "zero_velocity": ("zero_velocity", "none"),
+                                   "mean_pose": ("mean_pose", "none")},
                            max_items=12, batches=1)            # 12 items: every class has a test sequence
+    # a training-seed replica of Seq2Seq (another seed, 2 steps): its rows become mean +- std over the seeds
+    from motionsynth.training.run import run as train_run
+    train_run(compose_cfg(r, DS, "model=seq2seq", "run_name=seq2seq-seed1", "seed=1", "train.steps=2",
+                          "train.eval_every=1"), progress=False)
+    runs["seq2seq-seed1"] = "seq2seq"
     (r / "conf").symlink_to(REPO / "conf")                     # the method labels (conf/model/*.yaml: label)
     cfg = compose_cfg(r, DS, "eval.max_windows=100000", "eval.animation.sequences=2", "eval.threads=1")
     cfg["dataset"]["evaluate"] = {**cfg["dataset"]["evaluate"], "suites": ["horizon"]}
@@ -31,8 +37,12 @@ def suite(tmp_path_factory, one_thread):
 def test_rows_cover_every_method_class_and_exactly_the_horizons(suite):
     ctx, rows = suite
     assert set(rows["table"]) == {"Table 4"} and set(rows["metric"]) == {"Euclidean distance per frame"}
-    assert {"GloGen", "GloGen + interpolation", "Seq2Seq", "Zero-velocity",
-            "Zero-velocity (world-oriented)"} == set(rows["method"])
+    assert {"GloGen", "GloGen + interpolation", "Seq2Seq", "Zero-velocity", "Mean pose",
+            "Zero-velocity (world-oriented)"} == set(rows["method"])       # the replica is no row of its own
+    s2s = rows[rows["method"] == "Seq2Seq"]
+    assert (s2s["seeds"] == 2).all() and np.isfinite(s2s["std"]).all() and "2 training seeds" in s2s["note"].iloc[0]
+    assert (rows.loc[rows["method"] == "GloGen", "seeds"] == 1).all()
+    assert set(rows.loc[rows["method"].isin(["Zero-velocity", "Mean pose"]), "kind"]) == {"reference"}
     data = ctx.data("glocal", "test")
     present = {str(n) for n in data.meta["label_name"].to_numpy()[np.unique(data.windows["seq"])]}
     assert present == {"indian", "martial", "salsa"}
