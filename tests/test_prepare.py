@@ -124,11 +124,24 @@ def test_prepare_h36m_benchmark_variant(tmp_path):
     b = s["bench2d"]
     assert b["joints"] == 15 and b["dims"] == 2 and abs(b["fps"] - 50 / 3) < 1e-9
     meta = pd.read_parquet(tmp_path / "p/bench2d/meta.parquet")
-    assert len(meta) == 3 * 4 and meta["view"].nunique() == 4   # every camera is a sequence
+    assert len(meta) == 3 * 4 * 3 and meta["view"].nunique() == 4   # every camera and every phase is a sequence
     root = np.load(tmp_path / "p/bench2d/root.npy")
     assert (root[:, 2] > 1).all()                                # camera depth of the hip, metres
     w = pd.read_parquet(tmp_path / "p/bench2d/windows_glocal.parquet")
     assert (w["length"] == 60).all() and (w["every"] == 1).all()
+    # all_phases: phase p holds the 50 Hz frames p, p + 3, ...; together every frame once
+    store = pd.read_parquet(tmp_path / "i/meta.parquet").set_index("sequence_id")
+    views = np.load(tmp_path / "i/views2d.npy", mmap_mode="r")
+    pose = np.load(tmp_path / "p/bench2d/pose.npy")
+    for (src, view), g in meta.groupby(["source_id", "view"]):
+        assert g["phase"].tolist() == [0, 1, 2] and g["sequence_id"].tolist() == [f"{src}@{view}+{p}" for p in range(3)]
+        assert g["frames"].sum() == store.loc[src, "frames"] and set(g["source_id"]) == {src}
+    row = meta.iloc[4]                                  # rows: take, then camera, then phase: camera 2, phase 1
+    src = store.loc[row.source_id]
+    assert row.phase == 1
+    uv = views[src.offset + 1:src.offset + src.frames:3, 1]                    # 50 Hz frames 1, 4, 7, ...
+    keep = [1, 2, 3, 4, 5, 6, 7, 8, 10, 11, 12, 13, 14, 15, 16]               # the 17 stored minus Hip, Neck/Nose
+    np.testing.assert_array_equal(pose[row.offset:row.offset + row.frames], (uv - uv[:, :1])[:, keep])
 
 
 def test_unknown_joint_in_representation_is_rejected(tmp_path):

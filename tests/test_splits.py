@@ -10,7 +10,8 @@ from conftest import archive_path, dataset_cfg
 from motionsynth.data.ingest import ingest
 from motionsynth.data.normalise import Normaliser
 from motionsynth.data.prepare import prepare
-from motionsynth.data.splits import assign, check_no_leak, split_dataset
+from motionsynth.data.splits import assign, check_no_leak, protocol_table, split_dataset
+from motionsynth.data.types import ConfigError
 
 
 def meta(n_src=40, views=1, classes=4, subjects=("S1", "S5", "S6", "S7", "S8", "S9", "S11")):
@@ -30,6 +31,20 @@ def test_subject_protocol_with_unused_subject():
     assert set(s[m.subject.isin(["S1", "S5", "S7", "S8", "S9"])]) == {"train", "val"}
     t = pd.DataFrame({"sequence_id": m.sequence_id, "source_id": m.source_id, "split": s})
     check_no_leak(t)   # all 4 views of a take share the split
+
+
+def test_keep_restricts_a_protocol_and_says_why():
+    m = meta(70, views=4)
+    t = protocol_table(m, {"by": "subject", "train": [1, 5, 7, 8, 9], "test": [11], "keep": {"view": ["cam2"]}},
+                       0.1, seed=0)
+    cam2, s6 = m.view == "cam2", m.subject == "S6"
+    assert set(t.split[~cam2 | s6]) == {"unused"} and set(t.split[cam2 & ~s6]) == {"train", "val", "test"}
+    assert (t.reason[s6] == "subject S6 is in neither train nor test").all()
+    assert (t.reason[~cam2 & ~s6] == "view " + m.view[~cam2 & ~s6] + " is not in keep.view (cam2)").all()
+    assert (t.reason[t.split != "unused"] == "").all()
+    # the carve-out draws among the kept views: as many val takes as without the filter
+    plain = assign(m, {"by": "subject", "train": [1, 5, 7, 8, 9], "test": [11]}, 0.1, seed=0)
+    assert m.source_id[t.split == "val"].nunique() == m.source_id[plain == "val"].nunique()
 
 
 def test_random_split_is_seeded_stratified_and_per_file():
@@ -78,7 +93,10 @@ def test_real_ntu_protocols_and_train_only_stats(tmp_path):
     train_ids = cs[cs == "train"].index
     idx = np.concatenate([np.arange(m.offset[i], m.offset[i] + m.frames[i]) for i in train_ids])
     np.testing.assert_allclose(stats["pose_mean"], pose[idx].mean(0), atol=1e-5)  # train frames only
-    assert int(stats["train_frames"]) == len(idx)
+    assert int(stats["train_frames"]) == len(idx) and "stats_over" not in stats.files   # the keys they always had
+    bad = {"protocols": {"peek": {"by": "subject", "train": [1], "test": "rest", "stats_over": ["train", "test"]}}}
+    with pytest.raises(ConfigError, match=r"conf/dataset/p.yaml: split.protocols.peek.stats_over must name train"):
+        split_dataset(tmp_path / "p", tmp_path / "s2", bad, seed=0)
 
 
 def test_real_h36m_windows_never_cross_splits(tmp_path):
@@ -86,7 +104,7 @@ def test_real_h36m_windows_never_cross_splits(tmp_path):
     ingest(cfg, archive_path("h36m"), tmp_path / "i", max_items=12, progress=False)
     prepare(tmp_path / "i", tmp_path / "p", cfg["prepare"]["representations"])
     split_dataset(tmp_path / "p", tmp_path / "s", cfg["split"], seed=0)
-    for proto in ("cross_subject", "csgan", "cross_view"):
+    for proto in ("cross_subject", "csgan", "csgan_4cam", "cross_view"):
         t = pd.read_csv(tmp_path / f"s/bench2d/{proto}.csv")
         w = pd.read_parquet(tmp_path / "p/bench2d/windows_glocal.parquet")
         wsplit = w["sequence_id"].map(t.set_index("sequence_id")["split"])
@@ -95,15 +113,25 @@ def test_real_h36m_windows_never_cross_splits(tmp_path):
         assert (w.groupby("sequence_id").size() > 0).all()
         assert t.groupby("sequence_id")["split"].nunique().max() == 1
     cv = pd.read_csv(tmp_path / "s/bench2d/cross_view.csv")
-    assert set(cv[cv.split == "test"].sequence_id.str.split("@").str[1]) == {"60457274"}
+    assert set(cv[cv.split == "test"].sequence_id.str.split("@").str[1].str.split("+").str[0]) == {"60457274"}
+    # csgan: camera 55011271 alone, every other view unused with its reason; csgan_4cam: all four cameras
+    cs = pd.read_csv(tmp_path / "s/bench2d/csgan.csv")
+    cam = cs.sequence_id.str.contains("@55011271+", regex=False)
+    s6 = cs.sequence_id.str.startswith("S6_")
+    assert set(cs[~cam | s6].split) == {"unused"} and (cs[s6].reason == "subject S6 is in neither train nor test").all()
+    assert cs[~cam & ~s6].reason.str.fullmatch(r"view \d+ is not in keep.view \(55011271\)").all()
+    assert set(cs[cam].split) >= {"train", "test"}
+    c4 = pd.read_csv(tmp_path / "s/bench2d/csgan_4cam.csv")
+    assert set(c4[c4.sequence_id.str.contains("@60457274+", regex=False)].split) >= {"train", "test"}
+    assert (c4.reason.isna() == (c4.split != "unused")).all()
     stats = np.load(tmp_path / "s/bench2d/csgan_stats.npz")
-    assert float(stats["mean_depth"]) > 1.0
+    assert float(stats["mean_depth"]) > 1.0 and list(stats["stats_over"]) == ["train", "val"]
     # the c-SkeletonGAN normalisation: depth-scaled, then standardised with train statistics
     norm = Normaliser.load(tmp_path / "s/bench2d/csgan_stats.npz")
     pose, root = np.load(tmp_path / "p/bench2d/pose.npy"), np.load(tmp_path / "p/bench2d/root.npy")
     m = pd.read_parquet(tmp_path / "p/bench2d/meta.parquet")
     t = pd.read_csv(tmp_path / "s/bench2d/csgan.csv")
-    train = m[t.split.values == "train"]
+    train = m[t.split.isin(["train", "val"]).values]               # csgan: every training subject's frames
     idx = np.concatenate([np.arange(o, o + f) for o, f in zip(train.offset, train.frames)])
     z = norm(pose[idx], root[idx])
     np.testing.assert_allclose(z.mean(0), 0, atol=1e-3)

@@ -11,6 +11,20 @@ For each *representation* named in the dataset config (``prepare.representations
   and mean/std normalisation use train-split statistics, so they happen in
   ``split``/training, never here.
 
+  ``all_phases: true`` (2-D, an integer down-sampling ratio ``k``, e.g. 50 Hz -> 16.7 Hz,
+  ``k = 3``) keeps every frame: each view of a source sequence becomes ``k`` sequences, phase
+  ``p = 0 .. k-1`` holding the source frames ``p, p + k, p + 2k, ...``, with sequence id
+  ``<source>@<view>+<p>`` and a ``phase`` column ``p`` in ``meta.parquet`` (only there: other
+  representations' tables keep their columns, byte for byte). Why store the phases rather than the source rate or the first phase alone: the
+  Human3.6M 2-D benchmark (c-SkeletonGAN / SA-GCN / GlocalNet, ``split``'s ``csgan`` protocol)
+  takes its normalisation statistics over *every* 50 Hz frame and draws its clips (every 3rd
+  frame) at *any* start frame, so at any phase. With the phases stored, ``split`` gets every
+  50 Hz frame from the representation itself (the frames of a take's phase sequences are
+  exactly its source frames), the evaluation cuts a clip of any start frame ``t`` as a dense run
+  of phase ``t mod k`` from pose ``t // k``, and training and windows stay dense at the
+  benchmark rate (``every`` keeps meaning key poses, as GloGen / LocGen read it). The phases of
+  one take share its ``source_id``, so a split never separates them.
+
 Clip windows for each model family (``clips:``) are written as index tables
 (:mod:`.clips`). No statistic over all data is computed here.
 """
@@ -29,7 +43,7 @@ import pandas as pd
 from .clips import resample, windows
 from .controls import root_and_controls
 from .store import Store
-from .types import Skeleton
+from .types import ConfigError, Skeleton
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +62,9 @@ def prepare(store_dir: str | Path, out_dir: str | Path, representations: Mapping
         space = rep.get("space", "3d")
         if space not in ("3d", "2d"):
             raise ValueError(f"prepare.representations.{name}.space must be 3d or 2d, got {space!r}")
+        if rep.get("all_phases") and space != "2d":
+            raise ConfigError(f"prepare.representations.{name}.all_phases: only 2-D representations keep "
+                              f"every phase; {name} is {space}")
         fn = _prepare_3d if space == "3d" else _prepare_2d
         summary["representations"][name] = fn(store, Path(out_dir) / name, rep)
         # the representation's own description and the store's class table, read by split and training
@@ -118,15 +135,31 @@ def _prepare_2d(store: Store, out: Path, rep: Mapping[str, Any]) -> dict[str, An
         uv = np.asarray(v2d[sl], dtype=np.float32)                  # [T, V, J, 2]
         d = np.asarray(depth[sl], dtype=np.float32) if depth is not None else np.ones(uv.shape[:2], np.float32)
         cam_names = view_names(row)
+        phases = _phases(float(row["fps"]), fps, rep)
         for v in range(uv.shape[1]):
-            q = resample(uv[:, v], float(row["fps"]), fps)          # [T', J, 2]
-            dv = resample(d[:, v], float(row["fps"]), fps)
-            c = q[:, center]
-            poses.append((q - c[:, None, :])[:, idx])
-            roots.append(np.concatenate([c, dv[:, None]], axis=1))
-            rows.append(_row(row, len(q), fps, f"{row['sequence_id']}@{cam_names[v]}", cam_names[v]))
+            for p in phases:
+                q = resample(uv[p:, v], float(row["fps"]), fps)     # [T', J, 2]
+                dv = resample(d[p:, v], float(row["fps"]), fps)
+                c = q[:, center]
+                poses.append((q - c[:, None, :])[:, idx])
+                roots.append(np.concatenate([c, dv[:, None]], axis=1))
+                sid = f"{row['sequence_id']}@{cam_names[v]}" + (f"+{p}" if len(phases) > 1 else "")
+                rows.append(_row(row, len(q), fps, sid, cam_names[v], phase=p if len(phases) > 1 else None))
     meta = _finish(out, rows, {"pose": poses, "root": roots}, sub)
     return _clips_and_summary(out, meta, rep, fps, 0, store)
+
+
+def _phases(src_fps: float, fps: float, rep: Mapping[str, Any]) -> list[int]:
+    """The start frames of the down-sampled sequences of one source sequence: ``[0]``, or with
+    ``all_phases`` every offset ``0 .. k-1`` of the integer ratio ``k = src_fps / fps``."""
+    if not rep.get("all_phases"):
+        return [0]
+    ratio = src_fps / fps
+    k = round(ratio)
+    if k < 1 or abs(ratio - k) > 1e-6 * ratio:
+        raise ConfigError(f"all_phases needs an integer down-sampling ratio; the source is at {src_fps:g} fps "
+                          f"and the representation at {fps:g} fps (ratio {ratio:g})")
+    return list(range(k))
 
 
 def _view_names(store: Store, V: int):
@@ -142,20 +175,24 @@ def _view_names(store: Store, V: int):
     return names
 
 
-def _row(row: pd.Series, frames: int, fps: float, sid: str, view: str) -> dict[str, Any]:
+def _row(row: pd.Series, frames: int, fps: float, sid: str, view: str, phase: int | None = None) -> dict[str, Any]:
     r = {c: row.get(c, "") for c in META_COLS}
     r.update(sequence_id=sid, source_id=row["sequence_id"], view=view, frames=frames, fps=fps)
+    if phase is not None:
+        r["phase"] = phase
     return r
 
 
 def _finish(out: Path, rows: list[dict], arrays: dict[str, list[np.ndarray]], skel: Skeleton) -> pd.DataFrame:
     out.mkdir(parents=True, exist_ok=True)
-    meta = pd.DataFrame(rows, columns=META_COLS)
+    meta = pd.DataFrame(rows, columns=META_COLS + (["phase"] if rows and "phase" in rows[0] else []))
     meta["offset"] = np.concatenate([[0], np.cumsum(meta["frames"].to_numpy())[:-1]]).astype(np.int64) if len(meta) else []
     for col in ("subject", "view", "style", "label_name", "member", "dataset", "source_id"):
         meta[col] = meta[col].astype(str)
     for col in ("label", "label_raw"):
         meta[col] = pd.to_numeric(meta[col], errors="coerce").fillna(-1).astype(np.int64)
+    if "phase" in meta:
+        meta["phase"] = meta["phase"].astype(np.int64)
     for name, parts in arrays.items():
         np.save(out / f"{name}.npy", np.concatenate(parts, axis=0).astype(np.float32) if parts else np.zeros((0,)))
     meta.to_parquet(out / "meta.parquet", index=False)

@@ -10,10 +10,24 @@ A protocol (``split.protocols.<name>`` in the dataset config) is one of
 * ``by: sequence`` with ``stratify: label`` and ``test_fraction``: a seeded
   per-file split, stratified by class.
 
+Either kind may restrict itself with ``keep: {<meta column>: [values]}`` (matched like the
+lists above): the other sequences are ``unused`` (e.g. the ``csgan`` protocol keeps camera
+``55011271`` alone, as the c-SkeletonGAN / SA-GCN reference does). The table of a protocol that
+leaves sequences unused has a ``reason`` column saying why (empty for the others), and the stage's
+summary counts the sequences per reason. (Tables without unused sequences keep their three columns
+and the statistics files of ``stats_over: [train]`` their keys: other datasets' outputs stay byte
+for byte what they were, so DVC does not retrain on them.)
+
 Validation sequences are carved from train (``val_fraction``, seeded,
-stratified). Every draw is grouped by ``source_id``, so all windows and all
-camera views of one source take stay in one split. Normalisation statistics
-come from the train split only.
+stratified). Every draw is grouped by ``source_id``, so all windows, all
+camera views and all phases of one source take stay in one split.
+
+Normalisation statistics (``<protocol>_stats.npz``) come from the train split, or from the splits
+the protocol names in ``stats_over`` (``csgan``: ``[train, val]``, every training subject, as the
+reference computes them; the validation carve-out still only selects checkpoints). Never from test
+or unused sequences. They are over every stored frame of those sequences: for a representation
+prepared with ``all_phases`` (``bench2d``) that is every source frame (50 Hz), which is what the
+reference averages over.
 """
 
 from __future__ import annotations
@@ -21,13 +35,13 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
 from .normalise import depth_scaled
-from .types import MissingDataError
+from .types import ConfigError, MissingDataError
 
 SPLITS = ("train", "val", "test", "unused")
 
@@ -37,17 +51,23 @@ def _key(v: Any) -> Any:
     return int(m.group(1)) if m else str(v)
 
 
-def assign(meta: pd.DataFrame, protocol: Mapping[str, Any], val_fraction: float, seed: int) -> pd.Series:
-    """Split label per row of ``meta`` (``train``/``val``/``test``/``unused``)."""
+def _column(meta: pd.DataFrame, column: str) -> pd.Series:
+    if column not in meta:
+        raise KeyError(f"split protocol: unknown meta column {column!r}; have {list(meta.columns)}")
+    return meta[column].map(_key)
+
+
+def protocol_table(meta: pd.DataFrame, protocol: Mapping[str, Any], val_fraction: float, seed: int) -> pd.DataFrame:
+    """``split`` (``train``/``val``/``test``/``unused``) and ``reason`` (why a row is ``unused``;
+    ``""`` otherwise) per row of ``meta``."""
     by = protocol.get("by", "sequence")
     rng = np.random.default_rng(seed)
+    reason = pd.Series("", index=meta.index, dtype=object)
     if by == "sequence":
         split = _stratified(meta, "test", float(protocol.get("test_fraction", 0.2)),
                             protocol.get("stratify"), rng, pd.Series("train", index=meta.index))
     else:
-        if by not in meta:
-            raise KeyError(f"split protocol: unknown meta column {by!r}; have {list(meta.columns)}")
-        keys = meta[by].map(_key)
+        keys = _column(meta, by)
         train, test = protocol.get("train"), protocol.get("test")
         if train == "rest" and test == "rest":
             raise ValueError("split protocol: train and test cannot both be 'rest'")
@@ -60,9 +80,22 @@ def assign(meta: pd.DataFrame, protocol: Mapping[str, Any], val_fraction: float,
         if (in_train & in_test).any():
             raise ValueError(f"split protocol: values in both train and test: {sorted(set(meta[by][in_train & in_test]))}")
         split = pd.Series(np.where(in_train, "train", np.where(in_test, "test", "unused")), index=meta.index)
+        neither = split == "unused"
+        reason[neither] = by + " " + meta.loc[neither, by].astype(str) + " is in neither train nor test"
+    for column, values in (protocol.get("keep") or {}).items():
+        out = ~_column(meta, column).isin([_key(v) for v in values]) & (split != "unused")
+        split[out] = "unused"
+        reason[out] = (column + " " + meta.loc[out, column].astype(str)
+                       + f" is not in keep.{column} ({', '.join(map(str, values))})")
     # validation carved out of train, grouped by source, stratified like the protocol
     strat = protocol.get("stratify", "label" if "label" in meta else None)
-    return _stratified(meta, "val", val_fraction, strat, rng, split, among="train")
+    split = _stratified(meta, "val", val_fraction, strat, rng, split, among="train")
+    return pd.DataFrame({"split": split, "reason": reason})
+
+
+def assign(meta: pd.DataFrame, protocol: Mapping[str, Any], val_fraction: float, seed: int) -> pd.Series:
+    """Split label per row of ``meta`` (``train``/``val``/``test``/``unused``): :func:`protocol_table`'s."""
+    return protocol_table(meta, protocol, val_fraction, seed)["split"]
 
 
 def _stratified(meta: pd.DataFrame, target: str, fraction: float, stratify: str | None,
@@ -87,20 +120,28 @@ def _stratified(meta: pd.DataFrame, target: str, fraction: float, stratify: str 
     return split
 
 
-def train_stats(rep_dir: Path, meta: pd.DataFrame, split: pd.Series, depth_scale: bool = False) -> dict[str, np.ndarray]:
-    """Mean/std of pose (per joint and dimension), root and controls over train frames only.
+def train_stats(rep_dir: Path, meta: pd.DataFrame, split: pd.Series, depth_scale: bool = False,
+                over: Sequence[str] = ("train",)) -> dict[str, np.ndarray]:
+    """Mean/std of pose (per joint and dimension), root and controls over every frame of the
+    sequences whose split is in ``over`` (default: the train split only; never test or unused).
 
-    With ``depth_scale`` (2-D), ``mean_depth`` is the centre joint's mean camera
-    depth over train frames, and the pose statistics are those of the
-    depth-scaled poses (see :mod:`.normalise`), as in c-SkeletonGAN.
+    The c-SkeletonGAN / SA-GCN steps (``create_2d_data_corrected``): with ``depth_scale`` (2-D),
+    ``mean_depth`` (their ``avg_z``) is the centre joint's mean camera depth over those frames,
+    and the pose statistics are those of the depth-scaled poses (see :mod:`.normalise`): the plain
+    mean and the population std (``ddof=0``, ``np.std``'s default) per dimension, in float64,
+    stored as float32 (std floored at 1e-6). ``train_frames`` counts the train split's frames; with
+    ``over`` other than the train split alone, ``stats_over`` names the splits and ``stats_frames``
+    counts the frames the statistics are over.
     """
-    rows = meta[split == "train"]
+    rows = meta[split.isin(list(over)).to_numpy()]
     if len(rows) == 0:
-        raise ValueError(f"{rep_dir}: the train split is empty")
+        raise ValueError(f"{rep_dir}: no {'/'.join(over)} sequences for the statistics")
     idx = np.concatenate([np.arange(o, o + f) for o, f in zip(rows["offset"], rows["frames"])])
     arrays = {n: np.asarray(np.load(rep_dir / f"{n}.npy", mmap_mode="r")[idx], dtype=np.float64)
               for n in ("pose", "root", "controls") if (rep_dir / f"{n}.npy").exists()}
-    out: dict[str, np.ndarray] = {"train_frames": np.int64(len(idx))}
+    out: dict[str, np.ndarray] = {"train_frames": np.int64(meta["frames"][split.to_numpy() == "train"].sum())}
+    if list(over) != ["train"]:
+        out |= {"stats_over": np.array(list(over)), "stats_frames": np.int64(len(idx))}
     if depth_scale:
         out["mean_depth"] = np.float64(arrays["root"][:, 2].mean())
         arrays["pose"] = depth_scaled(arrays["pose"], arrays["root"][:, 2], float(out["mean_depth"]))
@@ -143,20 +184,30 @@ def split_dataset(processed: str | Path, out: str | Path, cfg: Mapping[str, Any]
             protocol = dict(protocol)
             if protocol.get("space") and protocol["space"] != rep_cfg["space"]:
                 continue  # e.g. a view protocol that only applies to 2-D projections
-            split = assign(meta, protocol, float(cfg.get("val_fraction", 0.1)), seed)
+            over = list(protocol.get("stats_over", ["train"]))
+            if not over or set(over) - {"train", "val"}:
+                raise ConfigError(f"conf/dataset/{processed.name}.yaml: split.protocols.{name}.stats_over must name "
+                                  f"train and/or val (statistics never see test or unused sequences), got {over}")
+            assigned = protocol_table(meta, protocol, float(cfg.get("val_fraction", 0.1)), seed)
+            split = assigned["split"]
             table = pd.DataFrame({"sequence_id": meta["sequence_id"], "source_id": meta["source_id"],
                                   "split": split.to_numpy()})
+            if (split == "unused").any():
+                table["reason"] = assigned["reason"].to_numpy()
             # view protocols legitimately put views of one take on both sides
             table.attrs["grouped_by_source"] = protocol.get("by") not in ("view",)
             for w in wins.values():
                 check_no_leak(table, w)
             table.to_csv(rep_out / f"{name}.csv", index=False)
-            np.savez(rep_out / f"{name}_stats.npz",
-                     **train_stats(rep_dir, meta, split, bool(rep_cfg.get("depth_scale", False))))
+            stats = train_stats(rep_dir, meta, split, bool(rep_cfg.get("depth_scale", False)), over)
+            np.savez(rep_out / f"{name}_stats.npz", **stats)
             s = table["split"]
             summary[f"{rep_dir.name}/{name}"] = {
                 "sequences": {k: int((s == k).sum()) for k in SPLITS},
                 "frames": {k: int(meta["frames"][s == k].sum()) for k in SPLITS},
                 "windows": {fam: {k: int(w["seq"].map(s).eq(k).sum()) for k in SPLITS} for fam, w in wins.items()},
+                "unused_reasons": {str(r): int(n) for r, n in assigned["reason"][s.to_numpy() == "unused"].value_counts(
+                    sort=False).sort_index().items()},
+                "stats_over": over, "stats_frames": int(stats.get("stats_frames", stats["train_frames"])),
             }
     return summary

@@ -3,10 +3,10 @@
 What is measured
 ----------------
 Every trained model of the dataset (``ctx.runs``; on ``h36m``: GloGen, ERD, LSTM-3LR, Seq2Seq,
-acLSTM, Scheduled Sampling, Zero-velocity) is given the first ``seed_poses`` = 10 poses of each
-chosen window and its class label and generates the next ``predicted`` = 50 poses
+acLSTM, Scheduled Sampling, Zero-velocity) is given the ``seed_poses`` = 10 poses before each drawn
+real clip (see Clips) and its class label and generates the next ``predicted`` = 50 poses
 (``model.generate(seed, labels=..., length=60)[:, 10:60]``). The 50 generated poses are compared
-with 50-pose real clips of the same class by :func:`motionsynth.metrics.mmd.mmd` (the SA-GCN /
+with the 50-pose real clips of the same class by :func:`motionsynth.metrics.mmd.mmd` (the SA-GCN /
 c-SkeletonGAN reference definition; its docstring has the details):
 
 * kernel ``exp(-||x - y||^2 / b)`` for ``b = 1e-4, 1e-3, ..., 1e9``, the maximum over ``b``;
@@ -18,51 +18,75 @@ c-SkeletonGAN reference definition; its docstring has the details):
   frame-to-frame differences of the 50 compared poses (``velocity=True``): the motion-sensitive
   variant (a pose held still has velocity 0 everywhere).
 
-Space and units: the models' own normalised space, the c-SkeletonGAN normalisation of ``bench2d``
-(15 joints x 2 image coordinates centred on the hip, multiplied by the hip's camera depth over its
-mean train depth, then standardised per dimension with the csgan train split's mean and std). The
-reference compares in this space too. The figures are unitless; the 2-D poses are at 16.7 Hz
-(every third 50 Hz frame), windows of 60 poses with stride 10 (the ``glocal`` family of ``bench2d``).
+Space and units: the models' own normalised space, which is the reference's (SA-GCN's
+``create_2d_data_corrected``; ``bench2d`` under the ``csgan`` protocol, ``conf/dataset/h36m.yaml``):
+camera 55011271 alone; 15 joints x 2 image coordinates centred on the hip; multiplied by the hip's
+camera depth over ``avg_z``, its mean over every 50 Hz frame of the five training subjects (S1, S5,
+S7, S8, S9, the validation carve-out included); then standardised per dimension with the mean and
+std (ddof 0) of those same frames. ``tests/test_csgan_reference.py`` pins these statistics to an
+independent implementation of the reference's steps (equal within 1e-6 relative). The figures are
+unitless; the poses are at 16.7 Hz (every third 50 Hz frame). (Until issue 12 ``csgan`` pooled all
+4 cameras and took its statistics over the train split alone, another space, up to 1.78 std units
+from this one; that version is the protocol ``csgan_4cam``, labelled ours.)
 
-Samples: ``evaluate.mmd.per_class`` (default 100) windows per class and side, ``n_c =
-min(per_class, windows of the class in the split // 2)`` (halved so that a disjoint second draw
-exists); 100 x 10 classes on the full data, the reference's test batch of 1000 (GlocalNet sec. 4.2)
-and the sample size of the issue's calibration measurement. ``eval.max_windows`` is not used: MMD
-is a two-sample statistic per class and needs this many per class.
+Clips: the reference's sampler (SA-GCN ``train.py: h36m_data_loader``)
+--------------------------------------------------------------------
+A *take* is one source sequence seen by the protocol's camera: ``N`` frames at the source rate (50
+Hz), prepared as its ``k`` = 3 phase sequences (``all_phases``, :mod:`motionsynth.data.prepare`),
+``k`` = source rate / pose rate. A clip of a take starts at a frame ``t`` drawn uniformly from the
+integers ``min_start .. N - 1 - k * predicted``, both ends included (``evaluate.mmd.min_start`` =
+300: the first 6 s are never used; the upper end is the reference's ``N - 1 - 150``), and holds the
+frames ``t, t + k, ..., t + k * (predicted - 1)``: 50 poses at 16.7 Hz, at any of the 3 phases (the
+pose ``t // k`` of phase sequence ``t mod k``). The ``seed_poses`` poses before it at the same phase
+(frames ``t - 30 .. t - 3``; ``t >= 300`` leaves room; a smaller ``min_start`` is raised to ``k *
+seed_poses``) seed the models, so GloGen's 10 + 50 protocol is kept; the reference's generator
+takes no seed. A take too short for one clip is left out (the condition counts them).
 
-Two protocols (``Row.protocol``), the same procedure on two splits
------------------------------------------------------------------
-For split ``p``, ``R_p`` = ``n_c`` windows per class spread evenly over the class's windows (in
-window order, deterministic). The models are seeded with the first 10 poses of ``R_p`` and their 50
-generated poses are scored against the real last 50 poses of the same windows ``R_p``: the batch of
-generated continuations against the batch of real clips they were seeded from, which is how the
-reference evaluation code pairs them (a generated batch from the real batch's seeds).
+Per class, ``evaluate.mmd.per_class`` = 100 clips a side (10 classes: 1000, the reference's test
+batch, GlocalNet sec. 4.2): clip ``i`` of a class comes from its take ``i mod m`` (``m`` takes, in
+the prepared order: subject, action, trial), as the reference's loader visits every sequence of an
+action in turn and cuts one clip at a fresh random start per visit. Choices where the reference is
+vague or unseeded: the count is per class (the reference's batch is balanced only because each of
+its actions has 10 training takes), and the draws are seeded (numpy ``default_rng([seed, protocol,
+0])`` for the real set; the reference calls Python's ``random`` unseeded). Every model and every
+calibration row is scored against the same real clips.
 
-* **test split (ours)**: ``p`` = the csgan test split, subject S11, which no model saw.
-* **train split (reference code)**: ``p`` = the csgan train split (S1, S5, S7, S8, S9; not the
-  ``val`` sequences), which the SA-GCN / c-SkeletonGAN evaluation code scores on and on which the
-  models were trained: the rows to set beside the published numbers. Choice: the models are seeded
-  with training windows here, as the reference does, rather than with test windows, so that they
-  stand on the same footing as the real-data rows of this protocol (a generated set seeded from
-  other clips would be compared with clips it has no relation to, while the still pose and the
-  reversed clips below are derived from the real set itself).
+Two protocols (``Row.protocol``), the same procedure on two pools of takes
+-------------------------------------------------------------------------
+For pool ``p``, ``R_p`` = the clips drawn from it as above. The models are seeded with the 10 poses
+before each clip of ``R_p`` and their 50 generated poses are scored against the real clips ``R_p``:
+the batch of generated continuations against the batch of real clips they continue.
+
+* **test split (ours)**: ``p`` = the takes of the csgan test split, subject S11, which no model saw.
+* **train split (reference code)**: ``p`` = the takes of every training subject (S1, S5, S7, S8, S9:
+  the csgan train split *and* its validation carve-out), which the SA-GCN / c-SkeletonGAN
+  evaluation code draws its real clips from (its test loader reads the training set; it has no
+  carve-out): the rows to set beside the published numbers. The models trained on the train
+  split's windows (60 poses from frame 0, stride 10, every phase) and chose their checkpoint on
+  the validation takes. Choice: the models are seeded with these training-subject clips, rather
+  than with test clips, so that they stand on the same footing as the real-data rows of this
+  protocol (a generated set seeded from other clips would be compared with clips it has no
+  relation to, while the still pose and the reversed clips below are derived from the real set
+  itself).
 
 Calibration rows (``kind="reference"``), per protocol, from real data and no model:
 
-* ``Real <p> clips, 2nd draw``: ``n_c`` other windows per class of the same split, drawn at
-  random outside ``R_p``. Windows of one sequence overlap in time (stride 10 poses), so a
-  second-draw window may share frames with a window of ``R_p``; this level is therefore low.
+* ``Real <p> clips, 2nd draw``: another draw of the same sampler from the same pool (its own
+  seed): the same takes, other random starts, as a second batch of the reference's loader. A clip
+  of it may overlap in time with a clip of ``R_p`` of the same take; this level is therefore low.
 * ``Real train clips`` (test protocol) / ``Real test clips`` (train protocol): the real last 50
   poses of ``R_train`` against those of ``R_test``; one number for both (MMD is symmetric;
   deterministic): the gap between subjects.
 * ``Still real pose``: each real clip of ``R_p`` replaced by one of its own 50 poses (a random one)
   held for all 50 frames. Its velocity columns are exactly those of any still sequence (all
-  velocities 0), so they equal Zero-velocity's and do not vary over seeds.
+  velocities 0), so they equal Zero-velocity's and do not vary over seeds (the row's mean over the
+  seeds of that one value may differ from it in the last bit).
 * ``Reversed real clips``: the real clips of ``R_p`` played backwards (deterministic).
 * ``Gaussian noise``: independent normal vectors per sample and frame with, per class and dimension,
   the mean and std of the real clips of ``R_p``.
 
-Random rows are repeated for every seed of ``ctx.seeds`` (numpy ``default_rng([seed, k])``) and
+Random rows are repeated for every seed of ``ctx.seeds`` (numpy ``default_rng([seed, i])``, ``i`` the
+protocol's index; one generator per seed for the 2nd draw, the still poses and the noise, in that order) and
 reported as mean +- std over seeds (``ctx.add_seeds``). The models are deterministic at evaluation
 (GloGen without dropout, the recurrent baselines, zero-velocity): one value, note "deterministic".
 The velocity figures of still sequences (every velocity exactly 0: the still pose, Zero-velocity)
@@ -97,10 +121,11 @@ there a still pose, and Zero-velocity, score about 1 (as far from real motion as
 while reversed clips keep their speeds and pass. Read a model's MMD against these rows, never alone.
 
 Other outputs: ``ctx.curve("mmd_per_class", method, class names, values)`` (test protocol, MMD_avg
-per class; random calibration rows as their mean over seeds) and ``ctx.sample``: the first
-``animation.sequences`` windows of ``ctx.pick`` over the test windows, ground truth and every
-model's 60 poses (10 seed + 50 generated), de-normalised with the windows' own hip depth to
-hip-centred image pixels (y down), ``[N, 60, 15, 2]``.
+per class; random calibration rows as their mean over seeds) and ``ctx.sample``:
+``animation.sequences`` clips of ``R_test`` spread evenly over it, ground truth and every model's 60
+poses (10 seed + 50 generated), de-normalised with the clips' own hip depth to hip-centred image
+pixels (y down), ``[N, 60, 15, 2]`` (``sequences`` / ``start_frames`` in the sample metadata: the
+phase sequence and its first seed pose).
 """
 
 from __future__ import annotations
@@ -112,9 +137,12 @@ import time
 from typing import Any
 
 import numpy as np
+import pandas as pd
 import torch
 
 from ..checks import one_of
+from ..data.clips import gather
+from ..data.types import ConfigError
 from ..metrics.mmd import CROSS, NEGATIVE, MMDResult, mmd
 from .context import EvalContext, slug
 
@@ -129,8 +157,10 @@ METRIC = "MMD"
 FIGURES = {"mmd_avg": ("MMD_avg", "avg", False), "mmd_seq": ("MMD_seq", "seq", False),
            "mmd_vel_avg": ("velocity MMD_avg", "avg", True), "mmd_vel_seq": ("velocity MMD_seq", "seq", True)}
 PROTOCOLS = {"test": "test split (ours)", "train": "train split (reference code)"}
+#: the splits whose takes each protocol draws its real clips from (the reference's: every training subject)
+POOLS = {"test": ("test",), "train": ("train", "val")}
 SUBJECTS = {"test": "S11", "train": "S1,5,7,8,9"}
-DEFAULTS: dict[str, Any] = {"per_class": 100, "seed_poses": 10, "predicted": 50, "max_per_class": 2000,
+DEFAULTS: dict[str, Any] = {"per_class": 100, "seed_poses": 10, "predicted": 50, "min_start": 0, "max_per_class": 2000,
                             "negative": "clamp", "cross": "full"}
 
 
@@ -145,7 +175,7 @@ def options(ctx: EvalContext) -> dict[str, Any]:
         raise ValueError(f"conf/dataset/{ctx.name}.yaml: evaluate.mmd has unknown key(s) {unknown}; "
                          f"known: {sorted(DEFAULTS)}")
     o = {**DEFAULTS, **given}
-    for k, lo in (("per_class", 2), ("seed_poses", 1), ("predicted", 2), ("max_per_class", 2)):
+    for k, lo in (("per_class", 2), ("seed_poses", 1), ("predicted", 2), ("min_start", 0), ("max_per_class", 2)):
         v = o[k]
         if isinstance(v, bool) or not isinstance(v, int) or v < lo:
             raise ValueError(f"conf/dataset/{ctx.name}.yaml: evaluate.mmd.{k} must be an integer >= {lo}; got {v!r}")
@@ -154,9 +184,72 @@ def options(ctx: EvalContext) -> dict[str, Any]:
     return o
 
 
-def window_labels(data) -> np.ndarray:
-    """Class label of every window ``[len(data)]``."""
-    return np.asarray(data.labels)[data.windows["seq"].to_numpy()].astype(np.int64)
+def split_table(ctx: EvalContext) -> pd.Series:
+    """``sequence_id -> split`` of every prepared sequence under the dataset's training protocol."""
+    tr = ctx.dataset_cfg["training"]
+    path = ctx.paths["splits"] / ctx.name / tr["representation"] / f"{tr['protocol']}.csv"
+    return pd.read_csv(path).set_index("sequence_id")["split"]
+
+
+def takes(data, table: pd.Series, splits: tuple[str, ...]) -> tuple[pd.DataFrame, int]:
+    """The takes (a source sequence in one camera view) of ``data``'s representation whose split
+    (``table``: :func:`split_table`) is in ``splits``, in the prepared order, and ``k``, the number of
+    phases of every take.
+
+    One row per take: ``label``, ``seqs`` (the sequence index of phase ``p`` at position ``p``) and
+    ``frames`` (``N``, its source frames: the sum of its phase sequences' frames, which hold every
+    source frame once). Needs a representation prepared with ``all_phases``."""
+    m = data.meta.assign(seq=np.arange(len(data.meta)), split=data.meta["sequence_id"].map(table).to_numpy())
+    m = m[m["split"].isin(list(splits))]
+    rows = []
+    for (_, _), g in m.groupby(["source_id", "view"], sort=False):
+        g = g.sort_values("phase")
+        rows.append({"label": int(g["label"].iloc[0]), "seqs": g["seq"].to_numpy(), "frames": int(g["frames"].sum()),
+                     "phases": tuple(g["phase"].tolist())})
+    t = pd.DataFrame(rows, columns=["label", "seqs", "frames", "phases"])
+    kinds = set(t["phases"])
+    if len(kinds) > 1 or (kinds and next(iter(kinds)) != tuple(range(len(next(iter(kinds)))))):
+        raise ValueError(f"takes with other phases than 0..k-1 for one k: {sorted(kinds)[:3]}")
+    return t.drop(columns="phases"), len(next(iter(kinds))) if kinds else 1
+
+
+def draw(pool: pd.DataFrame, k: int, counts: dict[int, int], o: dict[str, Any], rng: np.random.Generator
+         ) -> pd.DataFrame:
+    """``counts[c]`` clips of each class ``c`` (in class order) from the takes ``pool`` (see :func:`takes`),
+    the reference's way (module docstring): clip ``i`` of a class from its take ``i mod m``, its start
+    frame ``t`` uniform in ``max(min_start, k * seed_poses) .. N - 1 - k * predicted``.
+
+    Returns one row per clip: ``seq``, ``start`` (the first seed pose in the phase sequence ``seq``),
+    ``length`` (seed + predicted poses), ``label`` and ``frame`` (``t``, the clip's first frame at the
+    source rate)."""
+    S, P = o["seed_poses"], o["predicted"]
+    lo = max(o["min_start"], k * S)
+    out = []
+    for c, n in counts.items():
+        tk = pool[pool["label"] == c]
+        take = tk.iloc[np.arange(n) % len(tk)]
+        t = rng.integers(lo, take["frames"].to_numpy() - k * P, endpoint=False)   # high exclusive: N - k*P - 1 inclusive
+        seq = np.array([s[i % k] for s, i in zip(take["seqs"], t)], dtype=np.int64)
+        out.append(pd.DataFrame({"seq": seq, "start": t // k - S, "length": S + P, "label": c, "frame": t}))
+    return pd.concat(out, ignore_index=True)
+
+
+def usable(pool: pd.DataFrame, k: int, o: dict[str, Any]) -> pd.Series:
+    """Which takes of ``pool`` are long enough for one clip (:func:`draw`'s range not empty)."""
+    return pool["frames"] - 1 - k * o["predicted"] >= max(o["min_start"], k * o["seed_poses"])
+
+
+def raw_clips(data, table: pd.DataFrame) -> dict[str, np.ndarray]:
+    """The clips of ``table`` (:func:`draw`) in physical units: ``pose`` ``[B, S + P, J, D]`` (pixels),
+    ``root`` ``[B, S + P, 3]``, float64."""
+    return {"pose": gather(data.pose, data.offsets, data.frames, table).astype(np.float64),
+            "root": gather(data.root, data.offsets, data.frames, table).astype(np.float64)}
+
+
+def clips(data, table: pd.DataFrame) -> np.ndarray:
+    """The clips of ``table`` normalised as the models see them, ``[B, S + P, J, D]`` float64."""
+    r = raw_clips(data, table)
+    return data.norm(r["pose"], r["root"])
 
 
 def even_pick(idx: np.ndarray, n: int) -> np.ndarray:
@@ -164,26 +257,6 @@ def even_pick(idx: np.ndarray, n: int) -> np.ndarray:
     if n >= len(idx):
         return idx
     return idx[np.unique(np.linspace(0, len(idx) - 1, n).round().astype(int))]
-
-
-def per_class(labels: np.ndarray, counts: dict[int, int], exclude: np.ndarray | None = None,
-              rng: np.random.Generator | None = None) -> np.ndarray:
-    """Window indices, ``counts[c]`` of each class ``c`` (in class order), none of ``exclude``:
-    spread evenly in window order, or drawn at random without replacement with ``rng``."""
-    out = []
-    for c, n in counts.items():
-        idx = np.flatnonzero(labels == c)
-        if exclude is not None:
-            idx = np.setdiff1d(idx, exclude)
-        if len(idx) < n:
-            raise ValueError(f"class {c}: {len(idx)} windows, {n} needed")
-        out.append(even_pick(idx, n) if rng is None else np.sort(rng.choice(idx, n, replace=False)))
-    return np.concatenate(out)
-
-
-def clips(data, idx: np.ndarray) -> np.ndarray:
-    """Normalised windows ``[B, T, J, D]`` float64 (the models' space)."""
-    return data.batch(idx).pose.numpy().astype(np.float64)
 
 
 def generate(model, seed: np.ndarray, labels: np.ndarray, length: int, device) -> np.ndarray:
@@ -280,47 +353,57 @@ def run(ctx: EvalContext) -> None:
     o = options(ctx)
     S, P = o["seed_poses"], o["predicted"]
     family = ctx.dataset_cfg["training"]["family"]
+    rep_name = ctx.dataset_cfg["training"]["representation"]
     data = {"test": ctx.data(family, "test"), "train": ctx.data(family, "train")}
-    for split, d in data.items():
-        if len(d) == 0:
-            raise ValueError(f"{ctx.name}: no {family} windows in the {split} split")
-        if d.every != 1 or d.length < S + P:
-            raise ValueError(f"{ctx.name}: the mmd suite needs dense windows (every 1) of >= {S + P} poses "
-                             f"(evaluate.mmd.seed_poses + predicted); the {split} split's {family} windows have "
-                             f"{d.length} poses every {d.every}")
+    if not data["test"].rep.get("all_phases"):
+        raise ConfigError(f"conf/dataset/{ctx.name}.yaml: the mmd suite draws clips at any source frame, as the "
+                          f"reference's sampler does; prepare.representations.{rep_name}.all_phases must be true")
 
-    # ---- classes and windows
-    labels = {p: window_labels(d) for p, d in data.items()}
-    for p, v in labels.items():
-        if (v < 0).any():
-            raise ValueError(f"{ctx.name}: the mmd suite compares per class; {int((v < 0).sum())} {p} windows "
-                             "have no class label")
-    names = dict(zip(data["test"].meta["label"].astype(int), data["test"].meta["label_name"].astype(str)))
-    size = 1 + max(int(v.max()) for v in labels.values())
-    count = {p: np.bincount(v, minlength=size) for p, v in labels.items()}
-    present = sorted(set(labels["test"].tolist()) | set(labels["train"].tolist()))
-    classes = [c for c in present if min(count["test"][c], count["train"][c]) >= 4]
+    # ---- the takes each protocol draws from, and the classes
+    table = split_table(ctx)
+    pools, k = {}, {}
+    for p, d in data.items():
+        pools[p], k[p] = takes(d, table, POOLS[p])
+    if k["test"] != k["train"]:
+        raise AssertionError(f"{ctx.name}: {k} phases per take in the two pools")
+    k = k["test"]
+    short = {p: int((~usable(t, k, o)).sum()) for p, t in pools.items()}
+    pools = {p: t[usable(t, k, o)].reset_index(drop=True) for p, t in pools.items()}
+    meta = data["test"].meta
+    names = dict(zip(meta["label"].astype(int), meta["label_name"].astype(str)))
+    if (meta["label"] < 0).any():
+        raise ValueError(f"{ctx.name}: the mmd suite compares per class; {int((meta['label'] < 0).sum())} prepared "
+                         "sequences have no class label")
+    present = sorted(set(pools["test"]["label"]) | set(pools["train"]["label"]))
+    classes = [c for c in present if (pools["test"]["label"] == c).any() and (pools["train"]["label"] == c).any()]
     if not classes:
-        raise ValueError(f"{ctx.name}: no class has >= 4 {family} windows in both the test and the train split")
+        raise ValueError(f"{ctx.name}: no class has a take long enough for a clip in both the test split and the "
+                         f"training subjects (train + val)")
     left_out = [names.get(c, str(c)) for c in present if c not in classes]
     if left_out:
-        log.warning("%s mmd: classes %s have < 4 windows in the test or the train split; left out", ctx.name, left_out)
-    counts = {c: int(min(o["per_class"], count["test"][c] // 2, count["train"][c] // 2)) for c in classes}
+        log.warning("%s mmd: classes %s have no usable take in the test split or the training subjects; left out",
+                    ctx.name, left_out)
+    counts = {c: o["per_class"] for c in classes}
     n_total = sum(counts.values())
-    R = {p: per_class(labels[p], counts) for p in data}              # the real sets (and the models' seeds)
-    lab = labels["test"][R["test"]]
-    if not np.array_equal(lab, labels["train"][R["train"]]):
-        raise AssertionError("per-class picks are not aligned by class")
+    R = {p: draw(pools[p], k, counts, o, np.random.default_rng([ctx.seeds[0], i, 0]))   # the real sets (and seeds)
+         for i, p in enumerate(PROTOCOLS)}
+    lab = np.array(R["test"]["label"], dtype=np.int64)
+    if not np.array_equal(lab, R["train"]["label"].to_numpy()):
+        raise AssertionError("per-class draws are not aligned by class")
     windows = {p: clips(data[p], R[p]) for p in data}                # [N, S + P, J, D] normalised
     real = {p: (w[:, S:S + P], lab) for p, w in windows.items()}
     score = Scorer(real, o, ctx.device)
     class_names = [names.get(c, str(c)) for c in classes]
 
-    condition = (f"{S} seed + {P} predicted poses (16.7 Hz); {n_total} clips a side = {len(classes)} classes x "
-                 f"{'/'.join(sorted({str(v) for v in counts.values()}))}; c-SkeletonGAN normalised units; "
-                 f"MMD^2_u < 0: {o['negative']}; cross term: {o['cross']}")
+    src_fps = float(data["test"].rep["fps"]) * k
+    condition = (f"{S} seed + {P} predicted poses (one pose every {k} frames of {src_fps:g} Hz); real clips drawn as the "
+                 f"reference's loader (start >= {max(o['min_start'], k * S)} at {src_fps:g} Hz, any phase; seeded); "
+                 f"{n_total} clips a side = {len(classes)} classes x {o['per_class']}; c-SkeletonGAN normalised units "
+                 f"(the reference's statistics); MMD^2_u < 0: {o['negative']}; cross term: {o['cross']}")
     if left_out:
-        condition += f"; classes left out (too few windows): {', '.join(left_out)}"
+        condition += f"; classes left out (no usable take): {', '.join(left_out)}"
+    if any(short.values()):
+        condition += "; takes too short for a clip: " + ", ".join(f"{n} {p}" for p, n in short.items() if n)
     base = dict(paper=PAPER, table=TABLE, compare_to=COMPARE_TO, metric=METRIC, condition=condition, n=n_total)
 
     def add(proto: str, method: str, results: list[dict[str, MMDResult]], note: str, **kw: Any) -> None:
@@ -376,8 +459,8 @@ def run(ctx: EvalContext) -> None:
             continue
         for proto in PROTOCOLS:
             res = score(proto, fakes[proto], lab)
-            add(proto, method, [res], f"{note}; seeded with the {proto}-split windows ({SUBJECTS[proto]}) it is "
-                "scored against", run=run_name, kind=ctx.kind(run_name))
+            add(proto, method, [res], f"{note}; seeded with the {S} poses before each real clip ({SUBJECTS[proto]}) "
+                "it is scored against", run=run_name, kind=ctx.kind(run_name))
             if proto == "test":
                 per_class_curve(method, [res])
         outputs[run_name] = (method, model)
@@ -386,26 +469,26 @@ def run(ctx: EvalContext) -> None:
     # ---- calibration rows
     t0 = time.perf_counter()
     gap = score("test", real["train"][0], lab)  # R_train against R_test: one number for both protocols
-    gap_note = ("deterministic (windows spread evenly): real S1,5,7,8,9 clips against real S11 clips, the gap "
+    gap_note = ("deterministic (the real sets' seeded draws): real S1,5,7,8,9 clips against real S11 clips, the gap "
                 "between subjects; the same number in both protocols (MMD is symmetric)")
     add("test", "Real train clips", [gap], gap_note, kind="reference")
     add("train", "Real test clips", [gap], gap_note, kind="reference")
     per_class_curve("Real train clips", [gap])
-    for k, proto in enumerate(PROTOCOLS):
+    for i, proto in enumerate(PROTOCOLS):
         x = real[proto][0]
         rev = score(proto, x[:, ::-1], lab)
         add(proto, "Reversed real clips", [rev], "deterministic: the real clips played backwards", kind="reference")
         draws: dict[str, list[dict[str, MMDResult]]] = {"second": [], "still": [], "noise": []}
         for s in ctx.seeds:
-            rng = np.random.default_rng([s, k])
-            other = per_class(labels[proto], counts, exclude=R[proto], rng=rng)
+            rng = np.random.default_rng([s, i])
+            other = draw(pools[proto], k, counts, o, rng)
             draws["second"].append(score(proto, clips(data[proto], other)[:, S:S + P], lab))
             draws["still"].append(score(proto, still(x, rng), lab))
             draws["noise"].append(score(proto, noise(x, lab, rng), lab))
         seeds = f"{len(ctx.seeds)} random draws (seeds {ctx.seeds[0]}..{ctx.seeds[-1]})"
         rows = {"second": (f"Real {proto} clips, 2nd draw",
-                           f"{seeds} of other {proto}-split windows ({SUBJECTS[proto]}) than the real set's "
-                           "(windows of a sequence overlap in time, stride 10 poses: this level is low)"),
+                           f"{seeds} of the same sampler from the same takes ({SUBJECTS[proto]}): other random "
+                           "starts (a clip may overlap in time with one of the real set: this level is low)"),
                 "still": ("Still real pose", f"{seeds}: each real clip's own random pose held for {P} frames "
                                              "(velocity columns: every still sequence scores the same)"),
                 "noise": ("Gaussian noise", f"{seeds}: i.i.d. normal poses with the real clips' per-class, "
@@ -418,25 +501,25 @@ def run(ctx: EvalContext) -> None:
             per_class_curve("Reversed real clips", [rev])
     timings["calibration"] = round(time.perf_counter() - t0, 2)
 
-    # ---- animation samples: the first animation.sequences windows of ctx.pick over the test windows
+    # ---- animation samples: animation.sequences clips of R_test, spread evenly over it
     n_anim = int((ctx.opts.get("animation") or {}).get("sequences", 0))
     if n_anim > 0:
         test = data["test"]
-        idx = ctx.pick(test, n_anim)
-        raw = ctx.raw(test, idx)
-        z = clips(test, idx)
-        rep = ctx.dataset_cfg["training"]["representation"]
-        skel = json.loads((ctx.paths["processed"] / ctx.name / rep / "skeleton.json").read_text())
-        ctx.sample("ground truth", raw["pose"][:, :S + P], fps=float(test.rep["fps"]), parents=skel["parents"],
+        pick = R["test"].iloc[even_pick(np.arange(len(R["test"])), n_anim)]
+        raw = raw_clips(test, pick)
+        z = test.norm(raw["pose"], raw["root"])
+        skel = json.loads((ctx.paths["processed"] / ctx.name / rep_name / "skeleton.json").read_text())
+        ctx.sample("ground truth", raw["pose"], fps=float(test.rep["fps"]), parents=skel["parents"],
                    joints=skel["names"], space="2d", seed_frames=S, trajectory=False,
                    frame="hip-centred image coordinates (y down); no trajectory: the models predict none",
-                   units="pixels",
-                   title=f"{ctx.name}: GlocalNet Table 3 protocol, test windows {[int(i) for i in idx]} "
-                         f"(of {len(test)}), {S} seed + {P} generated poses")
+                   units="pixels", sequences=[str(x) for x in meta["sequence_id"].to_numpy()[pick["seq"].to_numpy()]],
+                   start_frames=[int(x) for x in pick["start"]],
+                   title=f"{ctx.name}: GlocalNet Table 3 protocol, test clips at {src_fps:g} Hz frames "
+                         f"{[int(f) for f in pick['frame']]}, {S} seed + {P} generated poses")
         for run_name, (method, model) in outputs.items():
             ctx.torch_seed(ctx.seeds[0])
-            g = generate(model, z[:, :S], raw["labels"], S + P, ctx.device)
-            ctx.sample(method, ctx.physical(test, g, raw["root"][:, :S + P]))
+            g = generate(model, z[:, :S], np.array(pick["label"], dtype=np.int64), S + P, ctx.device)
+            ctx.sample(method, ctx.physical(test, g, raw["root"]))
 
     timings["total"] = round(time.perf_counter() - t_start, 2)
     log.info("%s mmd: %d clips a side (%d classes); %d MMD figures computed, %d reused; timings %s",
