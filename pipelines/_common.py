@@ -20,6 +20,12 @@ os.environ["PYTHONPATH"] = os.pathsep.join(
     dict.fromkeys([str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1] / "src"),
                    *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]))
 
+from motionsynth.threads import OMP_SPIN_DEFAULT, OMP_SPIN_ENV  # noqa: E402  (imports no torch)
+
+# Idle OpenMP threads spin briefly, then sleep, so stages that share the cores (sweeps, `dvc exp run -j`,
+# a busy workstation) do not burn each other's cycles (motionsynth.threads). Set before torch starts.
+os.environ.setdefault(OMP_SPIN_ENV, OMP_SPIN_DEFAULT)
+
 from motionsynth import tracking  # noqa: E402
 from motionsynth.data.types import USER_ERRORS  # noqa: E402
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -168,6 +169,11 @@ class MLflowSweepCallback(_HydraCallback):
     def on_multirun_start(self, config, **kwargs) -> None:
         from omegaconf import OmegaConf
 
+        from .threads import PARALLEL_JOBS_ENV
+
+        n_jobs = OmegaConf.select(config, "hydra.launcher.n_jobs")   # joblib: jobs at once -> threads: auto
+        if isinstance(n_jobs, int) and n_jobs > 1:
+            os.environ[PARALLEL_JOBS_ENV] = str(n_jobs)
         env = self._setup(config)
         if env is None:
             return

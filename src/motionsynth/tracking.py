@@ -80,6 +80,12 @@ def is_rank_zero() -> bool:
     return int(os.environ.get("RANK", "0")) == 0
 
 
+def metric_key(key: str) -> str:
+    """``key`` with the characters MLflow refuses in metric names (anything but letters, digits and
+    ``_ - . space : /``) replaced by ``_``: summaries may key counts by free text (an unused reason)."""
+    return re.sub(r"[^\w\-. :/]", "_", str(key))
+
+
 def flatten(d: Mapping[str, Any], prefix: str = "", sep: str = ".") -> dict[str, Any]:
     """Flatten nested mappings into ``a.b.c`` keys; lists become their string form."""
     out: dict[str, Any] = {}
@@ -121,7 +127,7 @@ class StageRecorder:
         if self.proc is None:
             return
         flat_params = {k: _short(v) for k, v in flatten(params).items()}
-        flat_metrics = {k: float(v) for k, v in flatten(metrics).items()
+        flat_metrics = {metric_key(k): float(v) for k, v in flatten(metrics).items()
                         if isinstance(v, (int, float)) and not isinstance(v, bool)}
         payload = json.dumps({"run_name": run_name, "params": flat_params, "metrics": flat_metrics,
                               "tags": dict(tags), "artifacts": [str(a) for a in artifacts if Path(a).exists()]})
@@ -202,7 +208,7 @@ def log_runs(root: str | Path, experiment: str, runs: list[Mapping[str, Any]]) -
     for r in runs:
         with mlflow.start_run(run_name=r["run_name"], tags=dict(r.get("tags") or {})) as active:
             _log_params(mlflow, r.get("params"))
-            metrics = {k: float(v) for k, v in flatten(r.get("metrics") or {}).items()
+            metrics = {metric_key(k): float(v) for k, v in flatten(r.get("metrics") or {}).items()
                        if isinstance(v, (int, float)) and not isinstance(v, bool)}
             for i in range(0, len(metrics), 1000):
                 mlflow.log_metrics(dict(list(metrics.items())[i:i + 1000]))
@@ -218,7 +224,7 @@ def log_metrics(metrics: Mapping[str, float], step: int | None = None) -> None:
         return
     import mlflow
 
-    clean = {k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+    clean = {metric_key(k): float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
     if clean:
         mlflow.log_metrics(clean, step=step)
 

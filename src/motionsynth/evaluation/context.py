@@ -23,6 +23,7 @@ import torch
 import yaml
 
 from ..data.controls import to_global
+from ..threads import resolve as resolve_threads
 from ..training.data import WindowData, open_split
 from ..training.run import load_trained
 
@@ -234,7 +235,7 @@ class EvalContext:
 
 def evaluate(cfg: dict[str, Any], runs: dict[str, str]) -> EvalContext:
     """Run the dataset's suites and write every output (module docstring)."""
-    torch.set_num_threads(int(cfg["eval"]["threads"]))
+    torch.set_num_threads(resolve_threads(cfg["eval"]["threads"]))
     ctx = EvalContext(cfg, runs)
     suites = list(ctx.options.get("suites") or [])
     known = sorted(p.stem for p in Path(__file__).parent.glob("*.py") if p.stem not in NOT_SUITES)

@@ -145,6 +145,7 @@ import numpy as np
 import torch
 
 from ..data.controls import integrate_controls
+from ..threads import resolve as resolve_threads
 from ..data.types import Skeleton
 from ..metrics import recognition as rec
 from ..metrics.physical import bone_length_error, foot_skating_ratio
@@ -194,7 +195,7 @@ def _options(ctx: EvalContext) -> dict[str, Any]:
     if o["threads"] is not None and (isinstance(o["threads"], bool) or not isinstance(o["threads"], int)
                                      or o["threads"] < 1):
         raise ValueError(f"evaluate.generative.threads must be an integer >= 1 or null, got {o['threads']!r}")
-    o["threads"] = int(o["threads"] or ctx.opts.get("threads") or 1)
+    o["threads"] = resolve_threads(o["threads"] or ctx.opts.get("threads") or 1)
     for k in ("max_batches_per_epoch", "windows"):
         if o[k] is not None and (isinstance(o[k], bool) or not isinstance(o[k], int) or o[k] < 2):
             raise ValueError(f"evaluate.generative.{k} must be an integer >= 2 or null, got {o[k]!r}")

@@ -4,8 +4,10 @@
 ``mu`` ``[J, D]`` the mean over every frame of every **train-split** sequence of the training
 representation, in the normalised space the models work in (:meth:`MeanPose.fit_statistics`,
 called by the trainer on the training windows' sequences before its single evaluation; stored
-as the buffer ``mean``, so ``best.pt`` carries it). The normalisation's own mean comes from the
-same train frames, so ``mu`` is about 0 in normalised units; it is measured, not assumed.
+as the buffer ``mean``, so ``best.pt`` carries it). Where the normalisation's own mean comes from
+the same train frames, ``mu`` is about 0 in normalised units; where a protocol takes its statistics
+over other frames (``csgan``: the reference's, over train + val at 50 Hz) it is not. Either way it is
+measured, not assumed.
 
 Why it exists: a recurrent model that has collapsed to the mean pose scores about this row's
 error at every horizon, and at long horizons it even beats zero-velocity (any real motion drifts

@@ -103,12 +103,17 @@ class WindowData:
         """Batches over the windows; the order is a function of ``(seed, epoch)`` only, so a
         resumed run sees exactly the batches an uninterrupted one would. With ``world > 1``
         each rank takes every ``world``-th batch (DistributedSampler semantics)."""
+        for b in self.batch_indices(batch_size, shuffle, seed, epoch, drop_last)[rank::world]:
+            yield self.batch(b)
+
+    def batch_indices(self, batch_size: int, shuffle: bool, seed: int, epoch: int = 0,
+                      drop_last: bool = False) -> list[np.ndarray]:
+        """The window indices of every batch of pass ``epoch``: the ``(seed, epoch)`` permutation (or
+        window order) cut into ``batch_size`` pieces. The one definition of the batch order."""
         n = len(self)
         order = np.random.default_rng([seed, epoch]).permutation(n) if shuffle else np.arange(n)
         stop = n - n % batch_size if drop_last else n
-        batches = [order[i:i + batch_size] for i in range(0, stop, batch_size)]
-        for b in batches[rank::world]:
-            yield self.batch(b)
+        return [order[i:i + batch_size] for i in range(0, stop, batch_size)]
 
 
 def class_table(rep_dir: str | Path, num_classes: int | None = None) -> list[dict] | None:

@@ -76,6 +76,8 @@ import torch
 from tqdm.auto import tqdm
 
 from ..models.base import Batch, MotionModel
+from ..threads import check as threads_check
+from ..threads import resolve as resolve_threads
 from . import checkpoint as ckpt
 from . import distributed
 from .criteria import horizon_weighted_ratio
@@ -107,7 +109,7 @@ class TrainConfig:
     val_windows: int | None = None    # validate on N evenly spaced windows (None: all): the same ones for every model
     eval_batch_size: int = 64
     seed: int = 0
-    threads: int = 2
+    threads: int | str = "auto"   # CPU threads: "auto" = the cores this process may use / parallel jobs (threads.py)
     device: str = "auto"
 
     def validate(self) -> "TrainConfig":
@@ -155,8 +157,9 @@ class TrainConfig:
             problems.append("train.checkpoint_every and train.patience must be >= 1")
         if self.device not in ("auto", "cpu", "cuda") and not str(self.device).startswith("cuda:"):
             problems.append(f"train.device must be auto, cpu or cuda[:N], got {self.device!r}")
-        if self.threads < 1:
-            problems.append(f"train.threads must be >= 1, got {self.threads!r}")
+        bad_threads = threads_check(self.threads, "train.threads")
+        if bad_threads:
+            problems.append(bad_threads)
         if problems:
             raise ValueError("invalid training config: " + "; ".join(problems))
         return self
@@ -184,8 +187,8 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def resolve_device(name: str, threads: int) -> torch.device:
-    torch.set_num_threads(threads)
+def resolve_device(name: str, threads: int | str) -> torch.device:
+    torch.set_num_threads(resolve_threads(threads))
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(name)
@@ -312,12 +315,11 @@ class Trainer:
         return math.ceil(self.total_steps / self.round_steps) if self.total_steps else 0
 
     def _pass_batches(self, data_epoch: int) -> list[np.ndarray]:
-        """The window indices of every batch of data pass ``data_epoch``: a function of
-        ``(seed, data_epoch)`` only (:meth:`WindowData.iterate`'s order), cached for the current pass."""
+        """The window indices of every batch of data pass ``data_epoch`` (:meth:`WindowData.batch_indices`:
+        a function of ``(seed, data_epoch)`` only), cached for the current pass."""
         if getattr(self, "_cached_pass", (None,))[0] != data_epoch:
-            n, bs = len(self.train_data), self.cfg.batch_size
-            order = np.random.default_rng([self.cfg.seed, data_epoch]).permutation(n)
-            self._cached_pass = (data_epoch, [order[i:i + bs] for i in range(0, n, bs)])
+            self._cached_pass = (data_epoch, self.train_data.batch_indices(self.cfg.batch_size, True, self.cfg.seed,
+                                                                           data_epoch))
         return self._cached_pass[1]
 
     def _set_progress(self, round_: int, step: int) -> None:
