@@ -33,6 +33,8 @@ bench: install
 	$(BIN)/python bench/generate.py
 	$(BIN)/python bench/metrics.py
 	$(BIN)/python bench/acLSTM_units_check.py
+	$(BIN)/python bench/concurrency.py
+	$(BIN)/python bench/stability.py
 
 ui: install
 	$(BIN)/motionsynth ui
