@@ -94,7 +94,7 @@ def main() -> None:
     for ds in params["evaluate"]:
         # the classifier cache (an evaluate output) goes to the scratch copy: the repository's stays untouched
         over = [f"dataset={ds}", f"paths.models={models}",
-                f"dataset.evaluate.generative.cache_dir={work}/classifiers/{ds}", *threads, *common]
+                f"++dataset.evaluate.generative.cache_dir={work}/classifiers/{ds}", *threads, *common]
         timings[f"evaluate@{ds}"] = stage("evaluate.py", over, env, log)
         ref = pd.read_csv(ROOT / "reports" / "eval" / ds / "results.csv", keep_default_na=False)
         new = pd.read_csv(work / "reports" / "eval" / ds / "results.csv", keep_default_na=False)
