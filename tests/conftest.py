@@ -75,6 +75,32 @@ def overfit(model, batch, steps: int = 200, lr: float = 3e-3) -> tuple[float, fl
     return first, last
 
 
+def synthetic(spec, B: int = 3, T: int = 30, seed: int = 0):
+    """A ``Batch`` of random tensors of the right shapes for ``spec`` (shape, gradient and determinism
+    checks only: the learning tests use real data)."""
+    import torch
+
+    from motionsynth.models.base import Batch
+
+    g = torch.Generator().manual_seed(seed)
+    return Batch(torch.randn(B, T, spec.joints, spec.dims, generator=g),
+                 torch.randn(B, T, 3, generator=g) if spec.controls else None,
+                 torch.randint(0, spec.num_classes, (B,), generator=g) if spec.num_classes else None)
+
+
+def train_steps(model, batch, opt, steps: int) -> list[tuple[float, dict]]:
+    """``steps`` optimiser steps of ``model.loss`` on one batch (train mode): each step's loss and logs."""
+    model.train()
+    out = []
+    for _ in range(steps):
+        opt.zero_grad()
+        loss, logs = model.loss(batch)
+        loss.backward()
+        opt.step()
+        out.append((loss.item(), logs))
+    return out
+
+
 def compose_cfg(root: Path, dataset: str, *overrides: str) -> dict:
     """The pipeline's resolved Hydra config for ``dataset`` under project root ``root`` (smoke profile,
     MLflow off unless overridden)."""

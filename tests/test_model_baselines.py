@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import synthetic
 from omegaconf import OmegaConf
 
 from motionsynth.models.aclstm import ACLSTM
@@ -27,14 +28,6 @@ SMALL = {
     "aclstm": (ACLSTM, dict(hidden_size=16)),
     "scheduled_sampling": (LSTM3LR, dict(hidden_size=16, scheduled_sampling=True, ss_k=2)),
 }
-
-
-def synthetic(spec: DataSpec, B: int = 3, T: int = 30, seed: int = 0) -> Batch:
-    """Random tensors of the right shapes, for shape checks only (the learning tests use real data)."""
-    g = torch.Generator().manual_seed(seed)
-    return Batch(torch.randn(B, T, spec.joints, spec.dims, generator=g),
-                 torch.randn(B, T, 3, generator=g) if spec.controls else None,
-                 torch.randint(0, spec.num_classes, (B,), generator=g) if spec.num_classes else None)
 
 
 @pytest.fixture(scope="module")

@@ -701,7 +701,8 @@ def write_report(reports: Path, datasets: Sequence[str], published: Path, opts: 
         for old in fig_dir.glob("*.png"):
             old.unlink()
     figures = plot_curves(reports, datasets, kinds, fig_dir, opts.get("plots") or {})
-    train_md, train_figs = training_section(reports, datasets, fig_dir, opts.get("plots") or {})
+    train_md, train_figs = training_section(reports, datasets, fig_dir, opts.get("plots") or {},
+                                            (opts.get("notes") or {}).get("training"))
     files += figures + train_figs
     anim_md, anim_index = _animations_section(reports, datasets)
     e = dict(eval_opts or {})

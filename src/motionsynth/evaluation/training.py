@@ -60,22 +60,32 @@ def last_gain(curve: pd.DataFrame | None, tail: float) -> str:
     return f"{100 * (b0 - b1) / abs(b0):.1f} % better over the last {100 * tail:.0f} % of the steps"
 
 
-def section(reports: Path, datasets: Sequence[str], fig_dir: Path, opts: Mapping[str, Any] | None = None) -> tuple[str, list[Path]]:
-    """The markdown of the training section and the learning-curve PNGs it embeds."""
-    opts = dict(opts or {})
+def section(reports: Path, datasets: Sequence[str], fig_dir: Path, opts: Mapping[str, Any] | None = None,
+            reasons: Mapping[str, str] | None = None) -> tuple[str, list[Path]]:
+    """The markdown of the training section and the learning-curve PNGs it embeds. ``reasons`` maps a
+    model name to why its stages stop on their budget (``conf/report/default.yaml: notes.training``);
+    reference stages (zero-velocity, the mean pose: no optimiser steps) are marked as such, not as
+    converged."""
+    opts, reasons = dict(opts or {}), dict(reasons or {})
     rows, not_converged, first_round, figures = [], [], [], []
+    n_trained = n_converged = 0
     for ds in datasets:
         runs = read_runs(reports, ds)
         for s in runs:
             mon = s.get("monitor", "")
             trained = int(s.get("budget_steps") or 0) > 0
+            conv = ("yes" if s.get("converged") else "**no**") if trained else "reference (not trained)"
+            n_trained += trained
+            n_converged += bool(trained and s.get("converged"))
             rows.append([ds, s["run"], f"{_num(s.get('steps'))} / {_num(s.get('budget_steps'))}",
-                         _num(s.get("best_step")), "yes" if s.get("converged") else "**no**",
+                         _num(s.get("best_step")) if trained else "—", conv,
                          f"{mon.split('/')[-1]} {_num(s.get(mon))}", _num(s.get("val/pred_mse")),
                          _num(s.get("val/zero_velocity_mse")), _num(s.get("seconds"), 3)])
             if trained and not s.get("converged"):
+                why = reasons.get(str(s.get("model")), "")
                 not_converged.append(f"`{ds}/{s['run']}`: stopped at step {_num(s.get('steps'))} of "
-                                     f"{_num(s.get('budget_steps'))}, {last_gain(s['_curve'], 0.2)}")
+                                     f"{_num(s.get('budget_steps'))}, {last_gain(s['_curve'], 0.2)}"
+                                     + (f" ({why})" if why else ""))
             if trained and s.get("best_epoch") == 0:
                 first_round.append(f"`{ds}/{s['run']}`")
         if runs:
@@ -94,8 +104,10 @@ def section(reports: Path, datasets: Sequence[str], fig_dir: Path, opts: Mapping
              "less than 1 % over the last 20 % of the steps). `val pred MSE` is the long roll-out error (all frames "
              "after the seed, normalised units), kept for reference: the mean pose wins it.",
              md_table(header, rows)]
-    parts.append("**Stopped on the budget before converging:** " + ("; ".join(not_converged) if not_converged
-                                                                    else "none: every trained stage converged."))
+    parts.append(f"**{n_converged} of {n_trained} trained stages converged.** The references (zero-velocity, the "
+                 "mean pose) have no optimiser steps and are not counted. **Stopped on the budget before converging:**"
+                 + ("\n\n" + "\n".join(f"- {x}" for x in not_converged) if not_converged
+                    else " none: every trained stage converged."))
     parts.append("**Selected weights from the first validation round:** " + (", ".join(first_round) if first_round
                                                                             else "none."))
     parts += [f"![{f.stem}](figures/eval/{f.name})" for f in figures]

@@ -1,0 +1,234 @@
+"""cRBM: the conditional restricted Boltzmann machine of Taylor, Hinton and Roweis (NIPS 2006).
+
+The VAE-LSTM paper's Tables 1-2 baseline "CRBM [1]". Gaussian visible units ``v`` (one frame, unit
+variance: the features are normalised with train-split statistics), binary hidden units ``h``, and
+autoregressive connections from the previous ``order`` frames ``u = [v_{t-1} .. v_{t-N}]`` (plus the
+conditioning ``c``: given controls, class one-hot) to both layers, as dynamic biases:
+
+    b^ = b + A [u; c],   c^ = c_h + B [u; c]                                     (Taylor et al., eqs. 1-3)
+    E(v, h | u) = 1/2 ||v - b^||^2 - c^.h - v.W^T h
+    p(h_j = 1 | v, u) = sigmoid(c^_j + (W v)_j)                                   (eq. 4)
+    p(v | h, u) = N(b^ + W^T h, I)                                                (eq. 5)
+    F(v | u) = 1/2 ||v - b^||^2 - sum_j softplus(c^_j + (W v)_j)                   free energy
+
+Training is contrastive divergence with ``cd_k`` steps of alternating Gibbs sampling started at the
+data (CD-1 and CD-15 are the configs ``crbm`` and ``crbm_cd15``). Its update for every parameter
+``theta`` is ``<dF/dtheta>_data - <dF/dtheta>_recon``, which is exactly the gradient of the surrogate
+
+    L_CD = mean_t [F(v_t | u_t) - F(sg(v~_t) | u_t)]     (sg: no gradient through the chain's end v~)
+
+so the model trains through the shared trainer and optimiser by ``loss.backward()``
+(``tests/test_model_crbm.py`` checks the gradient against the closed-form CD update). The loss
+value is not an objective to select on: the trainer selects on the validation roll-out criterion,
+and the reconstruction error ``recon_mse`` is logged beside it.
+
+Generation (Taylor et al. Sec. 3.2): frame by frame, the past ``order`` frames (seed, then the
+model's own frames) fix the dynamic biases; ``gibbs_steps`` alternating Gibbs steps start from the
+previous frame; the last step takes the visible mean from the hidden probabilities, not a sample.
+
+Protocols as the recurrent baselines': under ``control_mode: predict`` (VAE-LSTM Table 1) the 3
+control signals are part of the visible frame (the model generates its own controls); under
+``given`` (Table 2) the ground-truth controls of the frame being generated join the conditioning.
+Class one-hots, when the dataset has classes, join the conditioning too.
+
+Choices that are ours: the visible reconstruction in the CD chain is the mean ``b^ + W^T h`` (Taylor's
+code, which also uses mean-field visibles), hidden states are sampled in the chain; the seed is
+padded with its first frame when shorter than ``order``; initial weights N(0, 0.01^2).
+
+Shapes: ``pose`` ``[B, T, J, D]`` -> frames ``[B, T, Fy]`` -> past ``[B, T-N, N*Fy]`` (one unfold, no
+loop over frames in training) -> ``v``, ``h`` ``[B, T-N, Fy]``, ``[B, T-N, hidden_size]``.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from .base import Batch, DataSpec, MotionModel
+from .recurrent import CONTROL_MODES, check_family, check_int, default_seed_frames
+
+
+def generate_samples(model, seed: Tensor | None, controls: Tensor | None, labels: Tensor | None, length: int,
+                     num_samples: int) -> Tensor:
+    """``num_samples`` independent roll-outs per input of a stochastic model with a ``rollout`` (each
+    input repeated, then rolled out once): ``[B*num_samples, length, J, D]``, the samples of input
+    ``b`` at rows ``b*num_samples ...``."""
+    check_int("num_samples", num_samples)
+    if num_samples > 1:
+        rep = lambda t: None if t is None else t.repeat_interleave(num_samples, 0)  # noqa: E731
+        seed, controls, labels = rep(seed), rep(controls), rep(labels)
+    return model.rollout(seed, controls, labels, length)[0]
+
+
+class CRBM(MotionModel):
+    family = None  # type: ignore[assignment]  # the dataset's window family (training.family)
+    uses_controls = True
+    uses_labels = True
+
+    def __init__(self, spec: DataSpec, hidden_size: int = 150, order: int = 3, cd_k: int = 1,
+                 gibbs_steps: int = 30, control_mode: str = "predict", seed_frames: int | None = None,
+                 family: str | None = None, train_window: int | None = None, init_std: float = 0.01):
+        super().__init__(spec)
+        self.hidden_size = check_int("hidden_size", hidden_size)
+        self.order = check_int("order", order)
+        self.cd_k = check_int("cd_k", cd_k)
+        self.gibbs_steps = check_int("gibbs_steps", gibbs_steps)
+        if control_mode not in CONTROL_MODES:
+            raise ValueError(f"control_mode must be one of {CONTROL_MODES}, got {control_mode!r}")
+        if not (isinstance(init_std, (int, float)) and init_std > 0):
+            raise ValueError(f"init_std must be a number > 0, got {init_std!r}")
+        self.train_window = None if train_window is None else check_int("train_window", train_window, order + 1)
+        self.control_mode = control_mode
+        self.seed_frames = default_seed_frames(spec, seed_frames)
+        self.family = check_family(family)
+        self.pose_dim = spec.pose_features
+        self.ctrl_dim = spec.controls
+        self.predict_controls = control_mode == "predict" and spec.controls > 0
+        self.given_controls = control_mode == "given" and spec.controls > 0
+        self.state_dim = self.pose_dim + (self.ctrl_dim if self.predict_controls else 0)                    # Fy
+        self.cond_dim = self.order * self.state_dim + (self.ctrl_dim if self.given_controls else 0) + spec.num_classes
+        g = lambda *s: nn.Parameter(torch.randn(*s) * init_std)  # noqa: E731
+        self.W = g(hidden_size, self.state_dim)            # visible-hidden
+        self.A = g(self.state_dim, self.cond_dim)          # past (+ conditioning) -> visible biases
+        self.B = g(hidden_size, self.cond_dim)             # past (+ conditioning) -> hidden biases
+        self.b_v = nn.Parameter(torch.zeros(self.state_dim))
+        self.b_h = nn.Parameter(torch.zeros(hidden_size))
+
+    # ------------------------------------------------------------------ features
+    def _frames(self, pose: Tensor, controls: Tensor | None) -> Tensor:
+        y = self.flat(pose)
+        if self.predict_controls:
+            if controls is None:
+                raise ValueError("control_mode 'predict' on a dataset with controls needs the batch's controls")
+            y = torch.cat([y, controls[:, :y.shape[1]].to(y.dtype)], -1)
+        return y
+
+    def _extra(self, controls: Tensor | None, labels: Tensor | None, B: int, T: int, like: Tensor) -> Tensor | None:
+        """Conditioning beyond the past frames, for frames ``0..T-1``: ``[B, T, Fc']`` or ``None``."""
+        parts = []
+        if self.given_controls:
+            if controls is None or controls.shape[1] < T:
+                got = None if controls is None else tuple(controls.shape)
+                raise ValueError(f"control_mode 'given' needs controls [B, {T}, 3], got {got}")
+            parts.append(controls[:, :T].to(like.dtype))
+        if self.spec.num_classes > 0:
+            if labels is None:
+                raise ValueError(f"CRBM is class-conditioned ({self.spec.num_classes} classes): pass labels [B] or [B, T]")
+            labels = labels.to(like.device).long()
+            oh = F.one_hot(labels, self.spec.num_classes).to(like.dtype)
+            parts.append(oh[:, None].expand(B, T, -1) if labels.dim() == 1 else oh[:, :T])
+        return torch.cat(parts, -1) if parts else None
+
+    def _past(self, y: Tensor) -> Tensor:
+        """``[B, T, Fy]`` -> the previous ``order`` frames of frames ``order..T-1``, newest first:
+        ``[B, T-order, order*Fy]``."""
+        N = self.order
+        win = y.unfold(1, N, 1)[:, :-1]                     # [B, T-N, Fy, N]: frames t-N .. t-1
+        return win.flip(-1).transpose(-1, -2).reshape(y.shape[0], y.shape[1] - N, N * y.shape[2])
+
+    # ------------------------------------------------------------------ the energy model
+    def biases(self, cond: Tensor) -> tuple[Tensor, Tensor]:
+        """Dynamic biases ``b^``, ``c^`` from the conditioning ``[..., cond_dim]`` (eqs. 2-3)."""
+        return self.b_v + cond @ self.A.t(), self.b_h + cond @ self.B.t()
+
+    def hidden_prob(self, v: Tensor, ch: Tensor) -> Tensor:
+        return torch.sigmoid(ch + v @ self.W.t())
+
+    def visible_mean(self, h: Tensor, bv: Tensor) -> Tensor:
+        return bv + h @ self.W
+
+    def free_energy(self, v: Tensor, cond: Tensor) -> Tensor:
+        """``F(v | cond)`` per frame ``[...]``."""
+        bv, ch = self.biases(cond)
+        return 0.5 * (v - bv).pow(2).sum(-1) - F.softplus(ch + v @ self.W.t()).sum(-1)
+
+    @torch.no_grad()
+    def gibbs(self, v: Tensor, cond: Tensor, steps: int, mean_last: bool = False) -> Tensor:
+        """``steps`` alternating Gibbs steps from ``v``: sample ``h ~ p(h | v)``, take the visible
+        mean; with ``mean_last`` the final step uses the hidden probabilities instead of a sample."""
+        bv, ch = self.biases(cond)
+        for i in range(steps):
+            ph = self.hidden_prob(v, ch)
+            h = ph if (mean_last and i == steps - 1) else torch.bernoulli(ph)
+            v = self.visible_mean(h, bv)
+        return v
+
+    def _windows(self, batch: Batch) -> tuple[Tensor, Tensor]:
+        """Visible frames ``order..T-1`` and their conditioning, ``[B, T-N, Fy]`` and ``[B, T-N, cond_dim]``."""
+        pose, controls, labels = batch.pose, batch.controls, batch.labels
+        T = pose.shape[1]
+        if self.training and self.train_window and self.train_window < T:
+            off = int(torch.randint(0, T - self.train_window + 1, ()))
+            sl = slice(off, off + self.train_window)
+            pose = pose[:, sl]
+            controls = controls[:, sl] if controls is not None else None
+            labels = labels[:, sl] if labels is not None and labels.dim() == 2 else labels
+            T = self.train_window
+        if T <= self.order:
+            raise ValueError(f"CRBM of order {self.order} needs windows of > {self.order} frames, got {T}")
+        y = self._frames(pose, controls)
+        cond = self._past(y)
+        extra = self._extra(controls, labels, y.shape[0], T, y)
+        if extra is not None:
+            cond = torch.cat([cond, extra[:, self.order:]], -1)
+        return y[:, self.order:], cond
+
+    def loss(self, batch: Batch) -> tuple[Tensor, dict[str, float]]:
+        """CD-``cd_k``: the free-energy surrogate whose gradient is the CD update (module docstring)."""
+        v0, cond = self._windows(batch)
+        vk = self.gibbs(v0, cond, self.cd_k)
+        loss = (self.free_energy(v0, cond) - self.free_energy(vk, cond)).mean()
+        err = (vk - v0).pow(2)
+        logs = {"recon_mse": float(err.mean()), "pose_mse": float(err[..., :self.pose_dim].mean())}
+        return loss, logs
+
+    # ------------------------------------------------------------------ synthesis
+    @torch.no_grad()
+    def rollout(self, seed: Tensor | None, controls: Tensor | None = None, labels: Tensor | None = None,
+                length: int = 240) -> tuple[Tensor, Tensor | None]:
+        """One sample to ``length`` frames from ``seed`` ``[B, S, J, D]`` and its controls
+        ``[B, length, 3]`` (normalised; under ``predict`` the seed's then the generated ones), as
+        :meth:`RecurrentBaseline.rollout`. Without a seed it starts from the mean pose."""
+        check_int("length", length)
+        p = self.W
+        J, D = self.spec.joints, self.spec.dims
+        if seed is None or seed.shape[1] == 0:
+            B = next((t.shape[0] for t in (seed, controls, labels) if t is not None), 1)
+            seed = p.new_zeros(B, 1, J, D)
+        seed = seed.to(p)
+        B, S = seed.shape[:2]
+        if controls is not None:
+            controls = controls.to(p)
+        if S >= length:
+            return seed[:, :length], (controls[:, :length] if controls is not None and self.ctrl_dim else None)
+        seed_ctrl = None
+        if self.predict_controls:
+            seed_ctrl = controls[:, :S] if controls is not None else p.new_zeros(B, S, self.ctrl_dim)
+        y = self._frames(seed, seed_ctrl)                                   # [B, S, Fy]
+        extra = self._extra(controls, labels, B, length, y)
+        frames = [y[:, 0]] * max(self.order - S, 0) + list(y.unbind(1))    # padded with the first frame
+        for t in range(S, length):
+            past = torch.cat(frames[-1:-self.order - 1:-1], -1)              # newest first
+            cond = past if extra is None else torch.cat([past, extra[:, t]], -1)
+            frames.append(self.gibbs(frames[-1], cond, self.gibbs_steps, mean_last=True))
+        gen = torch.stack(frames[-(length - S):], 1)                        # [B, length-S, Fy]
+        pose = torch.cat([seed, self.unflat(gen[..., :self.pose_dim].contiguous())], 1)
+        ctrl = None
+        if self.predict_controls:
+            ctrl = torch.cat([seed_ctrl, gen[..., self.pose_dim:]], 1)
+        elif self.given_controls:
+            ctrl = controls[:, :length]
+        return pose, ctrl
+
+    @torch.no_grad()
+    def generate(self, seed: Tensor | None, controls: Tensor | None = None, labels: Tensor | None = None,
+                 length: int = 240, num_samples: int = 1) -> Tensor:
+        """``[B*num_samples, length, J, D]``; the samples of one input differ (the hidden units are
+        sampled), ``out[:, :S] == seed``."""
+        return generate_samples(self, seed, controls, labels, length, num_samples)
+
+    @torch.no_grad()
+    def predict(self, batch: Batch) -> Tensor:
+        T = batch.pose.shape[1]
+        return self.generate(batch.pose[:, :min(self.seed_frames, T)], batch.controls, batch.labels, length=T)
