@@ -46,7 +46,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .base import Batch, DataSpec, MotionModel
-from .recurrent import CONTROL_MODES, check_family, check_int, default_seed_frames
+from .recurrent import CONTROL_MODES, check_family, check_int, default_seed_frames, rollout_output, seed_inputs
 
 
 def generate_samples(model, seed: Tensor | None, controls: Tensor | None, labels: Tensor | None, length: int,
@@ -190,21 +190,10 @@ class CRBM(MotionModel):
         """One sample to ``length`` frames from ``seed`` ``[B, S, J, D]`` and its controls
         ``[B, length, 3]`` (normalised; under ``predict`` the seed's then the generated ones), as
         :meth:`RecurrentBaseline.rollout`. Without a seed it starts from the mean pose."""
-        check_int("length", length)
-        p = self.W
-        J, D = self.spec.joints, self.spec.dims
-        if seed is None or seed.shape[1] == 0:
-            B = next((t.shape[0] for t in (seed, controls, labels) if t is not None), 1)
-            seed = p.new_zeros(B, 1, J, D)
-        seed = seed.to(p)
+        seed, controls, seed_ctrl = seed_inputs(self, seed, controls, labels, length)
         B, S = seed.shape[:2]
-        if controls is not None:
-            controls = controls.to(p)
         if S >= length:
             return seed[:, :length], (controls[:, :length] if controls is not None and self.ctrl_dim else None)
-        seed_ctrl = None
-        if self.predict_controls:
-            seed_ctrl = controls[:, :S] if controls is not None else p.new_zeros(B, S, self.ctrl_dim)
         y = self._frames(seed, seed_ctrl)                                   # [B, S, Fy]
         extra = self._extra(controls, labels, B, length, y)
         frames = [y[:, 0]] * max(self.order - S, 0) + list(y.unbind(1))    # padded with the first frame
@@ -212,14 +201,7 @@ class CRBM(MotionModel):
             past = torch.cat(frames[-1:-self.order - 1:-1], -1)              # newest first
             cond = past if extra is None else torch.cat([past, extra[:, t]], -1)
             frames.append(self.gibbs(frames[-1], cond, self.gibbs_steps, mean_last=True))
-        gen = torch.stack(frames[-(length - S):], 1)                        # [B, length-S, Fy]
-        pose = torch.cat([seed, self.unflat(gen[..., :self.pose_dim].contiguous())], 1)
-        ctrl = None
-        if self.predict_controls:
-            ctrl = torch.cat([seed_ctrl, gen[..., self.pose_dim:]], 1)
-        elif self.given_controls:
-            ctrl = controls[:, :length]
-        return pose, ctrl
+        return rollout_output(self, seed, torch.stack(frames[-(length - S):], 1), seed_ctrl, controls, length)
 
     @torch.no_grad()
     def generate(self, seed: Tensor | None, controls: Tensor | None = None, labels: Tensor | None = None,

@@ -386,6 +386,38 @@ def runs(col: Tensor) -> list[tuple[int, int, bool]]:
     return out
 
 
+# ----------------------------------------------------------------------------- roll-out plumbing
+def seed_inputs(model: MotionModel, seed: Tensor | None, controls: Tensor | None, labels: Tensor | None,
+                length: int) -> tuple[Tensor, Tensor | None, Tensor | None]:
+    """The start of a roll-out of a next-frame model (``pose_dim``, ``ctrl_dim``, ``predict_controls``):
+    the seed on the model's device and dtype (no seed: one mean pose, zeros in normalised units), the
+    controls likewise, and the seed's controls under ``predict`` (``controls[:, :S]``, else zeros)."""
+    check_int("length", length)
+    p = next(model.parameters())
+    if seed is None or seed.shape[1] == 0:
+        B = next((t.shape[0] for t in (seed, controls, labels) if t is not None), 1)
+        seed = p.new_zeros(B, 1, model.spec.joints, model.spec.dims)
+    seed = seed.to(p)
+    B, S = seed.shape[:2]
+    if controls is not None:
+        controls = controls.to(p)
+    seed_ctrl = None
+    if model.predict_controls and S < length:
+        seed_ctrl = controls[:, :S] if controls is not None else p.new_zeros(B, S, model.ctrl_dim)
+    return seed, controls, seed_ctrl
+
+
+def rollout_output(model: MotionModel, seed: Tensor, gen: Tensor, seed_ctrl: Tensor | None,
+                   controls: Tensor | None, length: int) -> tuple[Tensor, Tensor | None]:
+    """The seed followed by the generated state frames ``gen`` ``[B, length-S, Fy]`` as poses
+    ``[B, length, J, D]``, and the roll-out's controls: under ``predict`` the seed's then the generated
+    ones, under ``given`` the given ones, else ``None``."""
+    out = torch.cat([seed, model.unflat(gen[..., :model.pose_dim].contiguous())], 1)
+    if model.predict_controls:
+        return out, torch.cat([seed_ctrl, gen[..., model.pose_dim:]], 1)
+    return out, (controls[:, :length] if model.given_controls else None)
+
+
 # ----------------------------------------------------------------------------- the baseline base class
 class RecurrentBaseline(MotionModel):
     """Encoder-recurrent-decoder next-frame predictor; subclasses choose the core, the
@@ -652,34 +684,16 @@ class RecurrentBaseline(MotionModel):
         """:meth:`generate` (one sample) that also returns the roll-out's controls ``[B, length, 3]``
         (normalised): under ``predict`` the seed's then the model's own predictions (what a
         trajectory is integrated from), under ``given`` the given ones; ``None`` without controls."""
-        check_int("length", length)
-        p = next(self.parameters())
-        J, D = self.spec.joints, self.spec.dims
-        if seed is None or seed.shape[1] == 0:
-            B = next((t.shape[0] for t in (seed, controls, labels) if t is not None), 1)
-            seed = p.new_zeros(B, 1, J, D)
-        seed = seed.to(p)
+        seed, controls, seed_ctrl = seed_inputs(self, seed, controls, labels, length)
         B, S = seed.shape[:2]
-        if controls is not None:
-            controls = controls.to(p)
         if S >= length:
-            ctrl = controls[:, :length] if controls is not None and self.ctrl_dim else None
-            return seed[:, :length], ctrl
-        seed_ctrl = None
-        if self.predict_controls:
-            seed_ctrl = controls[:, :S] if controls is not None else p.new_zeros(B, S, self.ctrl_dim)
+            return seed[:, :length], (controls[:, :length] if controls is not None and self.ctrl_dim else None)
         y = self._state(seed, seed_ctrl)                                   # [B, S, Fy]
         inp = torch.cat([y, y.new_zeros(B, length - 1 - S, y.shape[-1])], 1)
         cond = self._cond(controls, labels, B, length, y)
-        mask = torch.arange(length - 1, device=p.device) < S
+        mask = torch.arange(length - 1, device=y.device) < S
         pred = self._rollout(inp, cond, mask)[:, S - 1:]                   # frames S..length-1
-        out = torch.cat([seed, self.unflat(pred[..., :self.pose_dim].contiguous())], 1)
-        ctrl = None
-        if self.predict_controls:
-            ctrl = torch.cat([seed_ctrl, pred[..., self.pose_dim:]], 1)
-        elif self.given_controls:
-            ctrl = controls[:, :length]
-        return out, ctrl
+        return rollout_output(self, seed, pred, seed_ctrl, controls, length)
 
     @torch.no_grad()
     def predict(self, batch: Batch) -> Tensor:
