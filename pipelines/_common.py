@@ -53,6 +53,26 @@ def one_line_errors(main: Callable) -> Callable:
     return wrapped
 
 
+def check_choices(argv: list[str] | None = None, conf: Path = Path(__file__).resolve().parents[1] / "conf") -> None:
+    """Refuse, in one line and before Hydra composes anything, a command-line choice of a config group
+    that has no file (``model=nosuch``: Hydra's own message spans a dozen lines). Multirun lists
+    (``model=a,b``) are checked value by value; ``+group=``/``~group`` and dotted keys are Hydra's. Groups
+    of a ``--config-dir``/``-cd`` count too."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    dirs = [conf] + [Path(b) for a, b in zip(args, args[1:]) if a in ("--config-dir", "-cd")] + \
+        [Path(a.split("=", 1)[1]) for a in args if a.startswith("--config-dir=")]
+    for arg in args:
+        key, sep, value = arg.partition("=")
+        if not sep or not key.isidentifier() or not (conf / key).is_dir() or value in ("", "null"):
+            continue
+        known = sorted({p.stem for d in dirs for p in (d / key).glob("*.yaml")})
+        for v in value.split(","):
+            if v not in known:
+                print(f"{Path(sys.argv[0]).stem}: {key}={v}: no conf/{key}/{v}.yaml; one of {', '.join(known)}",
+                      file=sys.stderr, flush=True)
+                raise SystemExit(USER_ERROR_EXIT)
+
+
 def _multirun() -> bool:
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode

@@ -14,7 +14,7 @@ import shutil
 from pathlib import Path
 
 import hydra
-from _common import log, one_line_errors, progress, rank_zero_hydra_argv, write_json
+from _common import check_choices, log, one_line_errors, progress, rank_zero_hydra_argv, write_json
 from omegaconf import DictConfig, OmegaConf
 
 from motionsynth.sweeps import job_context
@@ -44,5 +44,6 @@ def main(cfg: DictConfig) -> float:
 
 
 if __name__ == "__main__":
+    check_choices()         # model=nosuch: one line, before Hydra composes
     rank_zero_hydra_argv()  # torchrun: ranks > 0 write no Hydra output folders
     main()

@@ -20,9 +20,12 @@ from motionsynth.metrics.recognition import features, fid
 
 DS = "bandai1"
 RUNS = {"glogen": ("glogen", "none"), "locgen": ("locgen", "none"), "erd": ("erd", "none"),
-        "zero_velocity": ("zero_velocity", "none")}
+        "zero_velocity": ("zero_velocity", "none"), "glogen_lj": ("glogen_lj", "none"),
+        "vae_seq2seq": ("vae_seq2seq", "none")}
 OPTS = {"epochs": 3, "frame_step": 2}      # small and fast: the suite's mechanics, not the classifier's quality
-METHODS = {"GloGen", "GlocalNet", "LocGen", "ERD", "Zero-velocity"}
+#: deterministic rows (a GloGen loss ablation's chain is named after its label)
+METHODS = {"GloGen", "GlocalNet", "LocGen", "ERD", "Zero-velocity", "GloGen (L_J)", "GlocalNet (L_J)"}
+STOCHASTIC = {"Vae Seq2Seq"}               # draws its latent on every roll-out
 
 
 def _cfg(r, cache):
@@ -55,12 +58,12 @@ def test_every_method_has_every_metric_finite(built):
     t = built["table"]
     assert set(t.paper) == {"beyond_papers"} and set(t.table) == {"Generative metrics"}
     assert set(t.compare_to) == {f"{DS} (ours)"}
-    assert METHODS <= set(t.method)
-    for method in METHODS | {gen.REAL_ROW, gen.NOISE_ROW}:
+    assert METHODS | STOCHASTIC <= set(t.method)
+    for method in METHODS | STOCHASTIC | {gen.REAL_ROW, gen.NOISE_ROW}:
         for metric in gen.METRICS:
             r = cell(t, method, metric)
             assert math.isfinite(r.value) and r.n >= 2, (method, metric)
-    for method in METHODS:
+    for method in METHODS | STOCHASTIC:
         for column in ("abs (m)", "relative"):
             assert math.isfinite(cell(t, method, "Bone length error", column).value)
         # root-relative outputs only on bandai1: no foot-skating row for the models ...
@@ -86,6 +89,16 @@ def test_sample_spread_is_zero_for_deterministic_methods(built):
     for method in METHODS:
         r = cell(t, method, gen.SPREAD)
         assert r.value == 0.0 and r.note.startswith("deterministic") and r.key == "generative/sample_spread"
+
+
+def test_stochastic_rows_are_mean_and_std_over_seeds_with_a_non_zero_spread(built):
+    t, ctx = built["table"], built["ctx"]
+    for method in STOCHASTIC:
+        for column in (*gen.METRICS, gen.JITTER, gen.JITTER_REL):
+            r = cell(t, method, column)
+            assert r.seeds == len(ctx.seeds) > 1 and math.isfinite(r["std"]) and r.note.startswith("stochastic")
+        r = cell(t, method, gen.SPREAD)
+        assert r.value > 0 and "draws" in r.note                 # its samples differ
 
 
 def test_sample_spread_known_answer():
@@ -193,3 +206,51 @@ def test_bad_options_are_named(built):
         c["dataset"]["evaluate"]["generative"] = bad
         with pytest.raises(ValueError, match=match):
             gen.run(EvalContext(c, built["runs"]))
+
+
+# ----------------------------------------------------------------------------- jitter
+
+def test_jitter_of_constant_velocity_motion_is_zero():
+    rng = np.random.default_rng(0)
+    t = np.arange(12, dtype=np.float64)[None, :, None, None]
+    moving = rng.normal(size=(3, 1, 5, 3)) + rng.normal(size=(3, 1, 5, 3)) * t      # [3, 12, 5, 3]
+    assert gen.jitter(moving, start=1) == pytest.approx(0.0, abs=1e-12)
+    assert gen.jitter(moving, start=6) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_jitter_of_a_zig_zag_is_four_times_its_amplitude_over_the_joints():
+    """One of 4 joints zig-zags x_t = a (-1)^t along x: every second difference is 4a in magnitude."""
+    a, T, J = 0.03, 10, 4
+    x = np.zeros((2, T, J, 3))
+    x[:, :, 1, 0] = a * (-1.0) ** np.arange(T)
+    assert gen.jitter(x, start=1) == pytest.approx(4 * a / J, rel=1e-12)
+    # only the generated frames count: a zig-zag in the seed frames 0..4, straight motion from frame 5 on ...
+    y = np.zeros((2, T, J, 3))
+    y[:, :5, 2, 1] = a * (-1.0) ** np.arange(5)
+    y[:, 4:, 2, 1] = y[:, 4:5, 2, 1] + 0.01 * np.arange(T - 4)
+    assert gen.jitter(y, start=5) == pytest.approx(0.0, abs=1e-12)
+    assert gen.jitter(y, start=4) > 0                       # ... frame 3 enters once frame 4 counts as generated
+    # ... but the transition from the last seed frame counts: a jump at the first generated frame
+    y[:, 5:, 2, 1] += 0.1
+    assert gen.jitter(y, start=5) == pytest.approx(0.1 / (T - 1 - 5) / J, rel=1e-12)
+    with pytest.raises(ValueError, match="frames"):
+        gen.jitter(x[:, :4], start=3)
+
+
+def test_jitter_rows_the_real_reference_and_zero_velocity(built):
+    t, ctx = built["table"], built["ctx"]
+    test = ctx.data("glocal", "test")
+    a, _ = gen.real_halves(test, ctx.opts["max_windows"])
+    pose = ctx.raw(test, a)["pose"]                                      # [N, 96, 21, 3] metres
+    acc = pose[:, 2:] - 2 * pose[:, 1:-1] + pose[:, :-2]
+    real = cell(t, gen.REAL_ROW, gen.JITTER)
+    assert real.kind == "reference" and real.key == gen.JITTER_KEY == "generative/jitter"
+    assert real.value == pytest.approx(np.linalg.norm(acc, axis=-1).mean(), rel=1e-9) and real.value > 0
+    assert "metres per frame²" in real.note
+    rel = cell(t, gen.REAL_ROW, gen.JITTER_REL)
+    assert rel.value == 1.0 and rel.key == gen.JITTER_REL_KEY == "generative/jitter/relative"
+    for method in METHODS | STOCHASTIC:
+        assert math.isfinite(cell(t, method, gen.JITTER).value) and cell(t, method, gen.JITTER).value >= 0
+        assert math.isfinite(cell(t, method, gen.JITTER_REL).value)
+    # the held last seed pose: every second difference from the last seed frame on is exactly 0
+    assert cell(t, "Zero-velocity", gen.JITTER).value == 0.0 and cell(t, "Zero-velocity", gen.JITTER_REL).value == 0.0

@@ -9,16 +9,19 @@ import torch
 from conftest import REPO, build_eval_root, compose_cfg
 
 from motionsynth.evaluation import EvalContext, interpolation
-from motionsynth.evaluation.interpolation import WITH_INTERP, WITH_LOCGEN, densify, frame_errors
+from motionsynth.evaluation.interpolation import AS_GENERATED, WITH_INTERP, WITH_LOCGEN, densify, frame_errors
 
 DS = "bandai1"
+#: the Seq2Seq family: (run, label as published in GlocalNet Table 1)
+SEQ2SEQ_FAMILY = {"seq2seq": "Seq2Seq", "att_seq2seq": "att. Seq2Seq", "vae_seq2seq": "Vae Seq2Seq"}
 
 
 @pytest.fixture(scope="module")
 def suite(tmp_path_factory, one_thread):
     r = tmp_path_factory.mktemp("interp")
     runs = build_eval_root(r, DS, {"glogen": ("glogen", "none"), "locgen": ("locgen", "none"),
-                                   "zero_velocity": ("zero_velocity", "none")}, batches=1)
+                                   "zero_velocity": ("zero_velocity", "none"),
+                                   **{m: (m, "none") for m in SEQ2SEQ_FAMILY}}, batches=1)
     (r / "conf").symlink_to(REPO / "conf")                     # the method labels (conf/model/*.yaml: label)
     cfg = compose_cfg(r, DS, "eval.max_windows=40", "eval.animation.sequences=2", "eval.threads=1")
     cfg["dataset"]["evaluate"] = {**cfg["dataset"]["evaluate"], "suites": ["interpolation"]}
@@ -50,9 +53,10 @@ def test_rows_columns_and_finite_values(suite):
     assert set(rows["table"]) == {"Table 1"} and set(rows["compare_to"]) == {"NTU RGB+D 3D (60 classes)"}
     assert set(rows["metric"]) == {"Euclidean distance per frame"}
     got = {(m, c) for m, c in zip(rows["method"], rows["column"])}
+    baselines = ["Zero-velocity", *SEQ2SEQ_FAMILY.values()]
     assert got == {("GlocalNet", WITH_LOCGEN), ("GlocalNet", WITH_INTERP),
                    ("Ground-truth sparse poses", WITH_LOCGEN), ("Ground-truth sparse poses", WITH_INTERP),
-                   ("Zero-velocity", WITH_LOCGEN), ("Zero-velocity", WITH_INTERP), ("Zero-velocity", "as generated")}
+                   *((m, c) for m in baselines for c in (WITH_LOCGEN, WITH_INTERP, AS_GENERATED))}
     assert np.isfinite(rows["value"]).all() and (rows["value"] > 0).all() and (rows["n"] > 0).all()
     assert rows["note"].str.contains("not NTU").all()
     assert rows.groupby(["method", "key"]).size().max() == 1
@@ -105,3 +109,55 @@ def test_without_locgen_only_interpolation_is_measured(suite):
     cols = {r.column for r in c2.rows}
     assert WITH_LOCGEN not in cols and WITH_INTERP in cols
     assert "GlocalNet" in {r.method for r in c2.rows}
+
+
+def test_seq2seq_family_rows_join_the_published_ones(suite):
+    """Seq2Seq, att. Seq2Seq and Vae Seq2Seq each get both published columns (and ours), under the method
+    strings of GlocalNet Table 1 in reports/published_results.csv."""
+    _, rows = suite
+    pub = pd.read_csv(REPO / "reports" / "published_results.csv")
+    pub = pub[(pub["paper"] == "battan2021_glocalnet") & (pub["table"] == "Table 1")]
+    for run, label in SEQ2SEQ_FAMILY.items():
+        mine = rows[rows["method"] == label]
+        assert set(mine["column"]) == {WITH_LOCGEN, WITH_INTERP, AS_GENERATED}, label
+        assert set(mine["run"]) == {run} and set(mine["kind"]) == {"model"}
+        assert set(pub.loc[pub["method"] == label, "column"]) == {WITH_LOCGEN, WITH_INTERP}, label
+        assert set(mine["key"]) == {"table1/with_locgen", "table1/with_interpolation", "table1/as_generated"}
+
+
+def test_deterministic_rows_are_one_value_and_vae_seq2seq_is_mean_and_std_over_seeds(suite):
+    ctx, rows = suite
+    for label in ("Seq2Seq", "att. Seq2Seq", "GlocalNet", "Zero-velocity"):
+        r = rows[rows["method"] == label]
+        assert (r["seeds"] == 1).all() and r["std"].isna().all() and r["note"].str.contains("deterministic").all()
+    vae = rows[rows["method"] == "Vae Seq2Seq"]
+    assert (vae["seeds"] == len(ctx.seeds)).all() and len(ctx.seeds) > 1
+    assert (vae["std"] > 0).all() and vae["note"].str.contains("stochastic: mean \\+- std").all()
+
+
+def test_vae_seq2seq_cell_is_the_mean_and_std_of_one_roll_out_per_seed(suite):
+    """The ``as generated`` cell recomputed by hand: one roll-out per evaluation seed from the 21-frame seed."""
+    ctx, rows = suite
+    data = ctx.data("glocal", "test")
+    idx = ctx.pick(data, 40)
+    gt = ctx.raw(data, idx)["pose"]
+    batch = data.batch(idx)
+    model = ctx.model("vae_seq2seq")[0]
+    per_seed = []
+    for s in ctx.seeds:
+        torch.manual_seed(s)
+        z = model.generate(batch.pose[:, :21], labels=batch.labels, length=96)
+        per_seed.append(frame_errors(ctx.physical(data, z), gt, 30.0, np.arange(21, 96), 0).mean())
+    assert np.ptp(per_seed) > 0                                          # the draws differ
+    row = rows[(rows["method"] == "Vae Seq2Seq") & (rows["column"] == AS_GENERATED)].iloc[0]
+    np.testing.assert_allclose(row["value"], np.mean(per_seed), rtol=1e-9)
+    np.testing.assert_allclose(row["std"], np.std(per_seed, ddof=1), rtol=1e-6)
+
+
+def test_unknown_and_bad_options_are_named(suite):
+    ctx, _ = suite
+    for bad, match in (({"compare_too": "x"}, "unknown option.*compare_too"),
+                       ({"stochastic_check_windows": 0}, "stochastic_check_windows")):
+        cfg = {**ctx.cfg, "dataset": {**ctx.cfg["dataset"], "evaluate": {"interpolation": bad}}}
+        with pytest.raises(ValueError, match=match):
+            interpolation.run(EvalContext(cfg, ctx.runs))

@@ -17,8 +17,9 @@ from motionsynth.evaluation import locomotion as loco
 DS = "bandai2_locomotion"
 FRAMES = [70, 90, 120, 160, 210]
 RUNS = {"vae_lstm": ("vae_lstm", "none"), "erd": ("erd", "none"), "erd-controls_given": ("erd", "controls_given"),
+        "crbm": ("crbm", "none"), "crbm-controls_given": ("crbm", "controls_given"),
         "zero_velocity": ("zero_velocity", "none")}
-T1_METHODS = {"ERD", "VAE-LSTM", "VAE-LSTM (prior sample)", "Zero-velocity"}
+T1_METHODS = {"ERD", "cRBM CD-1", "VAE-LSTM", "VAE-LSTM (prior sample)", "Zero-velocity"}
 
 
 @pytest.fixture(scope="module")
@@ -28,6 +29,7 @@ def built(tmp_path_factory, one_thread):
     (r / "conf").symlink_to(REPO / "conf")          # ctx.label reads <paths.root>/conf/model/<m>.yaml
     cfg = compose_cfg(r, DS, f"paths.reports={r}/reports", f"paths.samples={r}/samples")
     cfg["dataset"]["evaluate"]["suites"] = ["locomotion"]
+    cfg["dataset"]["evaluate"]["locomotion"]["stochastic_seeds"] = None   # every seed (the option: its own test)
     ctx = evaluate(cfg, runs)
     table = pd.DataFrame([vars(x) for x in ctx.rows])
     data = ctx.data("vae_lstm")
@@ -69,7 +71,7 @@ def test_rows_have_the_published_keys_and_finite_values(built):
     # every published row of ours joins a published cell on the report's key
     pub = pd.read_csv(REPO.parent / "shared" / "papers" / "published_results.csv")
     key = ["paper", "table", "dataset", "metric", "column", "method"]
-    ours = t[t.method.isin(["ERD", "VAE-LSTM", "VAE-LSTM (prior sample)"])].drop(columns="dataset").rename(
+    ours = t[t.method.isin(["ERD", "cRBM CD-1", "VAE-LSTM", "VAE-LSTM (prior sample)"])].drop(columns="dataset").rename(
         columns={"compare_to": "dataset"})
     joined = ours[key].merge(pub[key], on=key, how="left", indicator=True)
     assert (joined["_merge"] == "both").all()
@@ -88,6 +90,67 @@ def test_stochastic_and_deterministic_rows(built):
             g = t[(t.table == tab) & (t.method == m)]
             assert (g.seeds == 1).all() and g["std"].isna().all() and g.note.str.contains("deterministic").all()
     assert set(t[t.kind == "reference"].method) == {"Zero-velocity"}
+
+
+def _crbm_per_seed(built, run: str) -> np.ndarray:
+    """``[seeds, frames]``: the cRBM's Table-1 (``crbm``) or Table-2 (``crbm-controls_given``) error,
+    recomputed here from its roll-out under each evaluation seed."""
+    ctx, raw, data, idx = built["ctx"], built["raw"], built["data"], built["idx"]
+    model, train = ctx.model(run)
+    batch = data.batch(idx)
+    S = model.seed_frames
+    out = []
+    for s in ctx.seeds:
+        ctx.torch_seed(s)
+        z, c = model.rollout(batch.pose[:, :S], batch.controls, batch.labels, length=240)
+        p = ctx.physical(train, z)
+        if run == "crbm":
+            ctrl = c.numpy().astype(np.float64) * train.ctrl_std + train.ctrl_mean
+            root = loco.root_from_controls(raw["root"], ctrl, 60.0, S)
+            out.append(loco.motion_error(p, root, raw["pose"], raw["root"], FRAMES).mean(0))
+        else:
+            out.append(loco.pose_error(p, raw["pose"], FRAMES, root_index=0).mean(0))
+    return np.array(out)
+
+
+def test_crbm_rows_in_both_tables_are_stochastic(built):
+    """The cRBM (a next-frame model with the roll-out interface, not a RecurrentBaseline) gets Table-1
+    rows from its plain run and Table-2 rows from its controls_given run, each the mean +- std over the
+    evaluation seeds of its Gibbs-sampled roll-outs, in the paper's row order."""
+    t, ctx = built["table"], built["ctx"]
+    for tab, run, cond, S in (("Table 1", "crbm", "60 initial frames; no control", 60),
+                              ("Table 2", "crbm-controls_given", "4 initial frames; control", 4)):
+        g = t[(t.table == tab) & (t.method == "cRBM CD-1")]
+        assert sorted(g.column, key=lambda c: int(c[5:])) == [f"frame{f}" for f in FRAMES]
+        assert (g.run == run).all() and (g.condition == cond).all() and (g.kind == "model").all()
+        assert len(ctx.seeds) == 5 and (g.seeds == 5).all() and (g["std"] > 0).all()
+        assert g.note.str.contains("stochastic: mean \\+- std over seeds").all()
+        per_seed = _crbm_per_seed(built, run)                     # known answer: seeded roll-outs by hand
+        assert np.allclose(g.value, per_seed.mean(0), rtol=1e-9)
+        assert np.allclose(g["std"], per_seed.std(0, ddof=1), rtol=1e-6)
+        assert ctx.model(run)[0].seed_frames == S
+        methods = list(dict.fromkeys(t[t.table == tab].method))   # the published order: ERD, ..., cRBM, VAE-LSTM
+        assert methods.index("ERD") < methods.index("cRBM CD-1") < methods.index("VAE-LSTM")
+    assert ctx.sample_meta["seed_frames"]["cRBM CD-1"] == 60 and ctx.samples["cRBM CD-1"].shape[1] == 240
+    for curve in ("motion_error_vs_frame", "pose_error_vs_frame"):
+        c = pd.DataFrame(ctx.curves[curve])
+        assert len(c[c.method == "cRBM CD-1"]) == 240
+
+
+def test_stochastic_seeds_option_limits_the_crbm_seeds(built):
+    """``stochastic_seeds: 2``: the cRBM's rows are the mean +- std over the first two seeds; a
+    deterministic baseline keeps one value."""
+    cfg = copy.deepcopy(built["cfg"])
+    cfg["dataset"]["evaluate"]["locomotion"]["stochastic_seeds"] = 2
+    ctx = EvalContext(cfg, {r: built["runs"][r] for r in ("crbm", "crbm-controls_given", "erd")})
+    loco.run(ctx)
+    t = pd.DataFrame([vars(x) for x in ctx.rows])
+    for tab, run in (("Table 1", "crbm"), ("Table 2", "crbm-controls_given")):
+        g = t[(t.table == tab) & (t.method == "cRBM CD-1")]
+        assert (g.seeds == 2).all() and g.note.str.contains("seed \\[0, 1\\]").all()
+        assert np.allclose(g.value, _crbm_per_seed(built, run)[:2].mean(0), rtol=1e-9)
+    erd = t[t.method == "ERD"]
+    assert (erd.seeds == 1).all() and erd["std"].isna().all()
 
 
 def test_zero_velocity_known_answer(built):
@@ -203,7 +266,8 @@ def test_deterministic_rerun_and_integrated_vae_trajectory(built):
 
 def test_bad_options_fail_before_work(built):
     for opts, msg in (({"reduction": "bogus"}, "reduction"), ({"vae_trajectory": "x"}, "vae_trajectory"),
-                      ({"framez": [70]}, "unknown option")):
+                      ({"framez": [70]}, "unknown option"), ({"stochastic_seeds": 0}, "stochastic_seeds"),
+                      ({"stochastic_check_windows": "4"}, "stochastic_check_windows")):
         cfg = copy.deepcopy(built["cfg"])
         cfg["dataset"]["evaluate"]["locomotion"] = opts
         with pytest.raises(ValueError, match=msg):

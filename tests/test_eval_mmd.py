@@ -15,7 +15,9 @@ from motionsynth.evaluation import EvalContext, evaluate
 from motionsynth.evaluation import mmd as suite
 
 DS = "h36m"
-MODELS = {"glogen": "GloGen", "seq2seq": "Seq2Seq", "zero_velocity": "Zero-velocity"}
+#: GloGen's loss ablations (GlocalNet Table 2) are models like any other here, rows of their own
+MODELS = {"glogen": "GloGen", "glogen_lj": "GloGen (L_J)", "glogen_lmf": "GloGen (L_MF)", "seq2seq": "Seq2Seq",
+          "zero_velocity": "Zero-velocity"}
 CALIBRATION = {"test": ["Real test clips, 2nd draw", "Real train clips", "Still real pose", "Reversed real clips",
                         "Gaussian noise"],
                "train": ["Real train clips, 2nd draw", "Real test clips", "Still real pose", "Reversed real clips",
@@ -82,6 +84,27 @@ def test_rows_keys_and_protocols(done):
     # outputs written, metrics keyed by protocol
     metrics = json.loads((ctx.paths["reports"] / "metrics" / f"{DS}.json").read_text())
     assert metrics["glogen"]["mmd/train/mmd_avg"] == round(value(t, "train", "GloGen", "MMD_avg"), 6)
+
+
+def test_loss_ablation_rows(done):
+    """GloGen (L_J) / (L_MF): both protocols, the paper's columns and the velocity ones, their loss weights in the
+    note; the full GloGen keeps its own rows and note."""
+    ctx, t = done
+    for run, label, weights in (("glogen_lj", "GloGen (L_J)", "lambda_joint = 1 (L_J, eq. 6), lambda_flow = 0"),
+                                ("glogen_lmf", "GloGen (L_MF)", "lambda_joint = 0 (L_J, eq. 6), lambda_flow = 1")):
+        rows = t[t.method == label]
+        assert len(rows) == len(suite.PROTOCOLS) * len(COLS)
+        assert (rows.run == run).all() and (rows.kind == "model").all()
+        assert set(zip(rows.protocol, rows.column)) == {(p, c) for p in suite.PROTOCOLS.values() for c in COLS}
+        assert rows.note.str.contains("loss ablation").all() and rows.note.str.contains(weights, regex=False).all()
+        assert rows.note.str.contains("t_in 10, t_out 50").all()                     # the GloGen protocol applies
+    full = t[t.method == "GloGen"]
+    assert len(full) == len(suite.PROTOCOLS) * len(COLS) and (full.run == "glogen").all()
+    assert full.note.str.contains("Our Method (GloGen)", regex=False).all()
+    assert not full.note.str.contains("ablation").any()
+    # three differently trained models, three sets of numbers
+    assert len({tuple(t[t.method == m].sort_values("key")["value"].round(12)) for m in
+                ("GloGen", "GloGen (L_J)", "GloGen (L_MF)")}) == 3
 
 
 def test_compare_to_is_the_published_table_3_string():

@@ -283,6 +283,23 @@ def test_training_is_deterministic_and_selects_by_val(real, tmp_path):
     np.testing.assert_array_equal(features(loaded, vx), features(a, vx))
 
 
+def test_patience_stops_after_the_selected_epoch_with_the_same_weights(real):
+    """With ``patience``, training stops ``patience`` epochs after the best one and returns exactly the
+    weights (and history prefix) of the run without it."""
+    (x, y), (vx, vy) = real["train"], real["val"]
+    x, y = x[::40], y[::40]                       # a small train set overfits within a few epochs
+    kw = dict(batch_size=8, lr=1e-2, threads=1, seed=3, select="val_loss")
+    full, hf = train_classifier(x, y, vx, vy, real["C"], epochs=10, **kw)
+    best = next(h["epoch"] for h in hf if h.get("selected"))
+    early, he = train_classifier(x, y, vx, vy, real["C"], epochs=10, patience=2, **kw)
+    assert best + 3 < 10 and len(he) == best + 3      # the stop is exercised
+    assert [h["val_loss"] for h in he] == [h["val_loss"] for h in hf[:len(he)]]
+    sf, se = full.state_dict(), early.state_dict()
+    assert all(torch.equal(sf[k], se[k]) for k in sf)
+    with pytest.raises(ValueError, match="patience"):
+        train_classifier(x[:8], y[:8], None, None, real["C"], epochs=1, patience=0)
+
+
 def test_train_classifier_rejects_bad_inputs(real):
     x, y = real["train"]
     x, y = x[:8], y[:8]

@@ -204,6 +204,74 @@ def test_overfit_one_real_batch(real, cls, kw):
     assert last <= 0.1 * first, (first, last)
 
 
+def reference_loss(m: GloGen, batch: Batch) -> torch.Tensor:
+    """GloGen's training loss written plainly (eqs. 1-2, 5-8): the chunk pairs cut by a Python loop, the
+    bi-LSTMs called as plain modules (PyTorch's default CPU kernel, oneDNN where built in), dropout drawn in
+    the model's order, the losses as explicit sums."""
+    sp = batch.pose[:, ::batch.every].flatten(2)                                    # [B, n, F]
+    t, B = m.t, sp.shape[0]
+    starts = range(0, sp.shape[1] - 2 * t + 1, m.pair_stride)
+    x_in = torch.stack([sp[:, i:i + t] for i in starts], 1).reshape(-1, t, sp.shape[2])          # [B * P, t, F]
+    x_out = torch.stack([sp[:, i + t:i + 2 * t] for i in starts], 1).reshape(-1, t, sp.shape[2])
+    onehot = torch.nn.functional.one_hot(batch.labels.repeat_interleave(len(starts)), m.num_classes).float()
+    states, (h, c) = m.net.encoder(torch.cat([x_in, onehot[:, None].expand(-1, t, -1)], -1))     # eq. 1
+    y, _ = m.net.decoder(m.net.drop(states), (h, c))                                            # eq. 2
+    pred = m.net.out(m.net.drop(y)) + x_in[:, -1:]                                              # residual
+    l_j = ((pred - x_out) ** 2).sum() / pred.numel()                                            # eq. 6
+    v_hat, v = pred[:, 1:] - pred[:, :-1], x_out[:, 1:] - x_out[:, :-1]                         # eqs. 7-8
+    l_mf = ((v_hat - v) ** 2).sum() / v.numel()
+    return m.lambda_joint * l_j + m.lambda_flow * l_mf                                          # eq. 5
+
+
+@pytest.mark.parametrize("lambdas", [(1.0, 1.0), (1.0, 0.0), (0.0, 1.0)])     # GlocalNet Table 2's three losses
+def test_training_loss_and_gradients_equal_a_plain_reference(real, lambdas):
+    """The training step's LSTMs run on PyTorch's native CPU kernel (glogen.native_cpu_rnn, for speed): the
+    loss and every gradient equal those of the plain reference computation on a fixed batch (train mode,
+    dropout 0.25 drawn from the same seed), and the global oneDNN switch is left as it was."""
+    batch, spec = real
+    torch.manual_seed(0)
+    m = GloGen(spec, t_in=5, hidden=200, dropout=0.25, pair_stride=2, lambda_joint=lambdas[0],
+               lambda_flow=lambdas[1]).train()
+    randomise_output(m)                                  # a zero output layer would leave the LSTMs' gradients 0
+    results = []
+    for fn in (lambda: m.loss(batch)[0], lambda: reference_loss(m, batch)):
+        m.zero_grad()
+        torch.manual_seed(7)
+        flag = torch.backends.mkldnn.enabled
+        loss = fn()
+        loss.backward()
+        assert torch.backends.mkldnn.enabled == flag
+        results.append((loss.item(), {k: p.grad.clone() for k, p in m.named_parameters()}))
+    (ours, g_ours), (ref, g_ref) = results
+    assert ours == pytest.approx(ref, rel=1e-6, abs=1e-9) and ours > 0
+    for k in g_ref:
+        assert g_ref[k].abs().max() > 0, k
+        torch.testing.assert_close(g_ours[k], g_ref[k], rtol=1e-5, atol=1e-7, msg=k)
+
+
+
+def test_single_threaded_training_runs_the_native_lstm_kernel(real):
+    """On one thread (this module's fixture) the training step's LSTMs skip oneDNN, which the reference's
+    plain module calls use (so the equality above compares two kernels); inference keeps the default."""
+    from motionsynth.models.glogen import NATIVE_RNN_MAX_THREADS
+
+    if not (torch.backends.mkldnn.is_available() and torch.backends.mkldnn.enabled):
+        pytest.skip("PyTorch without oneDNN: one kernel only")
+    assert torch.get_num_threads() <= NATIVE_RNN_MAX_THREADS
+    batch, spec = real
+    m = GloGen(spec, t_in=5, hidden=16, dropout=0.25).train()
+
+    def ops(fn) -> set[str]:
+        with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) as prof:
+            fn()
+        return {e.key for e in prof.key_averages()}
+
+    assert not any("mkldnn_rnn" in k for k in ops(lambda: m.loss(batch)[0].backward()))
+    assert any("mkldnn_rnn" in k for k in ops(lambda: reference_loss(m, batch).backward()))
+    m.eval()
+    assert any("mkldnn_rnn" in k for k in ops(lambda: m.predict(batch)))
+
+
 @pytest.mark.parametrize("cls", [GloGen, LocGen])
 def test_determinism(real, cls):
     batch, spec = real

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import yaml
 import torch
 from conftest import synthetic, train_steps
 from hydra import compose, initialize_config_dir
@@ -145,13 +146,16 @@ def test_bad_config_names_the_field(cls, field, value):
     ("att_seq2seq", "motionsynth.models.att_seq2seq.AttSeq2Seq", "attention_size"),
     ("vae_seq2seq", "motionsynth.models.vae_seq2seq.VAESeq2Seq", "latent_size")])
 def test_configs_compose_on_seq2seq(name, target, extra):
-    """The variants take Seq2Seq's sizes, optimiser and budgets (their configs extend seq2seq.yaml)."""
+    """The variants take Seq2Seq's sizes and optimiser, and its budgets unless they set their own
+    (att. Seq2Seq: 2.3x Seq2Seq's cost per step, its own shorter schedule)."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["dataset=bandai1", f"model={name}"])
         base = compose("config", overrides=["dataset=bandai1", "model=seq2seq"])
     m, s = (OmegaConf.to_container(c.model, resolve=True) for c in (cfg, base))
     assert m["name"] == name and m["_target_"] == target
-    assert m["schedule"] == s["schedule"] and m["train"] == s["train"]
+    assert m["train"] == s["train"]
+    own = yaml.safe_load((REPO / "conf" / "model" / f"{name}.yaml").read_text())
+    assert ("schedule" in own) or m["schedule"] == s["schedule"]
     cls = AttSeq2Seq if name == "att_seq2seq" else VAESeq2Seq
     for size in ("smoke", "default", "paper"):
         assert m["sizes"][size]["hidden_size"] == s["sizes"][size]["hidden_size"] and extra in m["sizes"][size]

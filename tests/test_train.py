@@ -106,6 +106,50 @@ def test_unknown_model_name_is_a_clear_error(root):
         config(root, "model=nope")
 
 
+@pytest.mark.parametrize("model,override,match", [
+    ("crbm", "+model_args.cdk=2", r"CRBM takes no hyperparameter\(s\) \['cdk'\]"),
+    ("att_seq2seq", "+model_args.atention_size=8", "atention_size"),
+    ("att_seq2seq", "+model_args.attention_size=0", "attention_size must be an integer >= 1, got 0"),
+    ("vae_seq2seq", "+model_args.beta=-1", "beta must be a number >= 0"),
+    ("glogen_lj", "+model_args.lambda_flowz=0", "lambda_flowz"),
+])
+def test_hyperparameters_a_model_cannot_take_fail_before_data_is_read(tmp_path, model, override, match):
+    """The root has no data at all: the error is the config's, not a missing file's."""
+    cfg = config(tmp_path / "empty", f"model={model}", override, f"paths.models={tmp_path}/m")
+    with pytest.raises(ValueError, match=match) as err:
+        run(cfg, progress=False)
+    assert f"conf/model/{model}.yaml" in str(err.value) and "\n" not in str(err.value)
+    assert not (tmp_path / "m").exists()
+
+
+def test_unknown_model_on_the_command_line_is_one_line_before_hydra(tmp_path):
+    r = subprocess.run([sys.executable, str(REPO / "pipelines/train.py"), f"dataset={DS}", "model=erd,nope",
+                        f"hydra.run.dir={tmp_path}"], cwd=REPO, capture_output=True, text=True)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [r.stderr.strip()]
+    assert r.stderr.startswith("train: model=nope: no conf/model/nope.yaml; one of ") and "erd" in r.stderr
+
+
+def test_a_config_variant_takes_its_base_models_dataset_protocol(tmp_path):
+    """glogen_lj (overrides_as: glogen) gets h36m's GloGen protocol (t_in 10, t_out 50) and its own lambdas."""
+    from motionsynth.training.run import hparams
+
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=["dataset=h36m", "model=glogen_lj", "tracking.enabled=false"])
+    from omegaconf import OmegaConf
+
+    hp = hparams(OmegaConf.to_container(cfg, resolve=True))
+    assert (hp["t_in"], hp["t_out"], hp["lambda_joint"], hp["lambda_flow"]) == (10, 50, 1.0, 0.0)
+
+
+def test_a_reference_stage_is_marked_as_such_not_converged(root, tmp_path):
+    s = run(config(root, "model=zero_velocity", f"paths.models={tmp_path}"), progress=False)
+    assert s["reference"] is True and s["converged"] is None and s["best_step"] is None and s["budget_steps"] == 0
+    t = run(config(root, "model=erd", "train.steps=4", "train.eval_every=2", f"paths.models={tmp_path}"),
+            progress=False)
+    assert t["reference"] is False and isinstance(t["converged"], bool) and t["best_step"] in (2, 4)
+
+
 def test_mlflow_run_has_params_tags_metrics_and_artifacts(root, tmp_path, monkeypatch):
     db = tmp_path / "mlflow.db"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{db}")

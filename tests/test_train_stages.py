@@ -22,6 +22,9 @@ def test_train_run_entry_matches_its_configs(key):
         assert (REPO / f).is_file(), f
     assert key == f"{e['dataset']}-{e['name']}"
     model = yaml.safe_load((REPO / "conf" / "model" / f"{e['model']}.yaml").read_text())
+    base = yaml.safe_load((REPO / "conf" / "model" / f"{e['base']}.yaml").read_text())
+    assert e["base"] == e["model"] or e["base"] in model.get("defaults", [])   # the config it extends (a DVC param)
+    model.setdefault("_target_", base["_target_"])                          # a config variant: its base's class
     variant = yaml.safe_load((REPO / "conf" / "variant" / f"{e['variant']}.yaml").read_text())
     # the stage passes run_name explicitly; it must equal what a plain command line would name the run
     # (a training-seed replica: that name + "-seed<k>", the evaluation's replica convention)
@@ -51,4 +54,9 @@ def test_every_model_is_trained_on_the_datasets_the_issue_names():
              for e in RUNS.values()}
     assert seeds[("cmu_aclstm", "glogen")] == seeds[("cmu_aclstm", "seq2seq")] == [0, 1, 2]
     given = {e["model"] for e in RUNS.values() if e["variant"] == "controls_given"}
-    assert given == {"erd", "lstm3lr", "seq2seq", "aclstm", "scheduled_sampling"}
+    assert given == {"erd", "lstm3lr", "seq2seq", "aclstm", "scheduled_sampling", "crbm", "crbm_cd15"}
+    # the papers' other methods (issue 13): cRBM in VAE-LSTM Tables 1-2, the Seq2Seq variants in GlocalNet
+    # Tables 1 and 4, GloGen's loss ablation (Table 2) on H3.6M-2D and CMU
+    assert {("bandai2_locomotion", m) for m in ("crbm", "crbm_cd15")} <= pairs
+    assert {(ds, m) for ds in ("bandai1", "cmu_aclstm") for m in ("att_seq2seq", "vae_seq2seq")} <= pairs
+    assert {(ds, m) for ds in ("h36m", "cmu_aclstm") for m in ("glogen_lj", "glogen_lmf")} <= pairs

@@ -401,10 +401,9 @@ def _run_cfg_with_paths(info: RunInfo, cfg: dict) -> dict:
 
 def _hparams(rc: dict) -> dict:
     """The model's constructor arguments as :func:`motionsynth.training.run.build` merges them."""
-    m, ds = rc["model"], rc["dataset"]
-    size = rc.get("model_size", "default")
-    return {**(m.get("sizes") or {}).get(size, {}), **(ds["training"].get("model_overrides") or {}).get(m["name"], {}),
-            **(rc.get("model_args") or {})}
+    from .training.run import hparams
+
+    return hparams(rc)
 
 
 @dataclass

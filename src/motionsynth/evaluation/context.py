@@ -194,6 +194,22 @@ class EvalContext:
     def seeds(self) -> list[int]:
         return [int(self.cfg.get("seed", 0)) + i for i in range(int(self.opts["seeds"]))]
 
+    def is_stochastic(self, fn, batch, windows: int) -> bool:
+        """Whether ``fn(batch, seed)`` (a method's roll-out: a tensor or array) differs between two
+        seeds on the first ``windows`` windows of ``batch``: measured, not declared (the cRBM samples
+        its hidden units, Vae Seq2Seq its latent; the recurrent baselines are deterministic). Torch
+        is seeded with each seed before its roll-out."""
+        from ..models.base import Batch
+
+        cut = lambda t: None if t is None else t[:windows]  # noqa: E731
+        few = Batch(batch.pose[:windows], cut(batch.controls), cut(batch.labels), batch.every)
+        a, b = [], []
+        for out, s in zip((a, b), self.seeds[:2] if len(self.seeds) > 1 else (self.seeds[0], self.seeds[0] + 1)):
+            self.torch_seed(s)
+            z = fn(few, s)
+            out.append(z.detach().cpu().numpy() if isinstance(z, torch.Tensor) else np.asarray(z))
+        return not np.array_equal(a[0], b[0])
+
     def torch_seed(self, seed: int) -> None:
         torch.manual_seed(seed)
         np.random.seed(seed % (2 ** 32))

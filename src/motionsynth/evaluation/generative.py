@@ -24,6 +24,29 @@ joint (``sqrt`` of the summed per-coordinate variances), averaged over joints, o
 ``spread_from_frame`` (5) .. ``T`` and over windows; metres on 3-D data, pixels on 2-D
 (:func:`sample_spread`). A deterministic method scores exactly 0 (not drawn: its draws are equal).
 
+Jitter (column ``Jitter``, key ``generative/jitter``; column ``Jitter, relative``, key
+``generative/jitter/relative``), for every method and for ``Real test data``: GlocalNet (sec. 4.4,
+"Ablation Study on Loss Functions") reports "jitters in the generated sequence (without having
+L_MF)" and that "L_MF enables the network to learn generating smoother transition", qualitatively
+only; this column measures it (:func:`jitter`). Per joint and frame the magnitude of the
+second difference of the joint's position,
+
+    a_{t,j} = || x_{t+1,j} - 2 x_{t,j} + x_{t-1,j} ||_2          (frame-to-frame acceleration)
+
+averaged over joints, over the generated frames and over the windows of ``A``: ``t`` runs over
+the generated frames ``S .. T-2`` (0-based, ``S`` = the method's seed length), so the first term
+reaches back to the last seed frame (the seed-to-generation transition counts) and the last one
+to frame ``T-1``. Positions are those the models generate: the stored root-relative,
+facing-normalised frame (no trajectory) in **metres per frame²** on 3-D data, the benchmark's
+centred image coordinates in **pixels per frame²** on 2-D data (h36m), at the dataset's fps (the
+note says which). ``Real test data``: the same quantity over the whole windows of ``A``.
+``relative``: the method's jitter over its own scored frames divided by that of the ground truth
+of the same windows over the same frames (1 = as smooth as real motion; > 1: jittery; < 1:
+smoother than real motion, e.g. frozen or over-damped). With sparse windows (``every > 1``) a
+linearly interpolated method's acceleration is 0 inside each gap and concentrated at the
+keyframes: its jitter measures the keyframes' changes of velocity spread over the gaps. Stochastic
+methods: mean +- std over ``ctx.seeds`` (one generation per seed, as the other columns).
+
 The classifier and its feature space
 ------------------------------------
 :class:`motionsynth.metrics.recognition.ActionClassifier` (Action2Motion's GRU: 2 x 128 GRU, the
@@ -46,7 +69,9 @@ multimodality, pairs drawn with replacement as the reference code does).
 * Training (:func:`~motionsynth.metrics.recognition.train_classifier`): Adam, cross-entropy, on the
   TRAIN split only; ``epochs`` x at most ``max_batches_per_epoch`` batches of ``batch_size``;
   the epoch with the best accuracy on (at most ``val_windows`` evenly spaced) VAL windows is
-  kept; the TEST split is only used afterwards. Seeded (``cfg.seed``), deterministic for a
+  kept, and training stops ``patience`` (3) epochs after it: the later epochs could not change
+  the kept weights (the cmu_aclstm classifier peaked at epoch 1 of 20 and trained on for 79 s).
+  The TEST split is only used afterwards. Seeded (``cfg.seed``), deterministic for a
   given thread count.
 * Threads: the suite runs on ``threads`` torch threads (default 1; ``null``: ``eval.threads``),
   restored afterwards. Its networks are small (GRU 128, batches of 64, the baselines' 128-unit
@@ -86,23 +111,28 @@ Every generated window has the length ``T`` of the family's windows and starts w
 model's ground-truth seed frames (the share is in ``Row.condition``); class labels come from
 the windows of ``A``.
 
-* Recurrent baselines (ERD, LSTM-3LR, Seq2Seq, acLSTM, Scheduled Sampling): ``seed_frames``
+* Next-frame models, i.e. every model with a ``rollout(seed, controls, labels, length)`` and
+  ``seed_frames`` (the recurrent baselines ERD, LSTM-3LR, acLSTM, Scheduled Sampling, the
+  Seq2Seq family Seq2Seq / att. Seq2Seq / Vae Seq2Seq, and the cRBM): ``seed_frames``
   ground-truth frames, the class label where the dataset has classes; with controls
   (bandai2_locomotion) ``control_mode: predict`` gets the seed's controls and predicts the
   rest (their predicted controls give the trajectory), ``given`` gets all ground-truth
-  controls. The roll-out is :meth:`RecurrentBaseline.generate`'s, re-run here so that the
-  predicted controls are kept (``generate`` returns the poses only).
+  controls. The roll-out is :meth:`RecurrentBaseline.rollout` (the cRBM's has the same contract),
+  which is ``generate`` keeping the roll-out's controls. Vae Seq2Seq draws its latent and the
+  cRBM its hidden units anew on every roll-out: both are measured stochastic (below).
 * Zero-velocity: the last seed pose held; its root is held too (zero controls after the seed).
 * GloGen: its ``t_in`` ground-truth sparse poses and the label, rolled out to the window's
   ``n`` sparse poses. With sparse windows (``every > 1``, bandai1) two rows: ``GloGen``, the
   sparse poses linearly interpolated (LocGen's eq. 3 with no network: the GloGen-only
   ablation), and ``GlocalNet`` = GloGen then LocGen's in-betweens (``M = every - 1``) when a
-  LocGen run exists. ``LocGen`` alone densifies the ground-truth keyframes of ``A``: an
-  in-betweening reference, not a generator (condition says so).
+  LocGen run exists. GloGen's loss ablations (runs of ``glogen_lj`` / ``glogen_lmf``, labels
+  ``GloGen (L_J)`` / ``GloGen (L_MF)``) are GloGen models and get the same rows, their chain named
+  after their label (``GlocalNet (L_J)``, ``GlocalNet (L_MF)``). ``LocGen`` alone densifies the
+  ground-truth keyframes of ``A``: an in-betweening reference, not a generator (condition says so).
 * VAE-LSTM: ``z_1`` from the prior (no seed frames) driven by ``A``'s ground-truth controls, as the
   paper synthesises; it takes no class label, so its class is the one the controls imply
   (bandai2_locomotion: walk / walk-turn-left / walk-turn-right / run).
-* Stochastic or deterministic is measured, not declared: each method generates 4 windows under
+* Stochastic or deterministic is measured, not declared: each method generates ``stochastic_check_windows`` (4) windows under
   two seeds; identical outputs -> deterministic (one generation, ``ctx.add``, note
   "deterministic"); else one generation per ``ctx.seeds`` (``ctx.add_seeds``, mean +- std).
   Multimodality of a deterministic model is the Action2Motion quantity (pairs of generated
@@ -150,6 +180,7 @@ from ..data.types import Skeleton
 from ..metrics import recognition as rec
 from ..metrics.physical import bone_length_error, foot_skating_ratio
 from .context import EvalContext
+from .horizon import chain_label, variant_of
 
 log = logging.getLogger(__name__)
 
@@ -159,6 +190,8 @@ GROUP = "Generative metrics"
 CLASSIFIER_ROW, REAL_ROW, NOISE_ROW = "Real test data (classifier)", "Real test data", "Gaussian noise"
 METRICS = ("FID", "Recognition accuracy", "Diversity", "Multimodality")
 SPREAD = "Sample spread"
+JITTER, JITTER_REL = "Jitter", "Jitter, relative"
+JITTER_KEY, JITTER_REL_KEY = "generative/jitter", "generative/jitter/relative"
 
 #: option defaults (``conf/dataset/<ds>.yaml: evaluate.generative`` overrides any of them)
 DEFAULTS: dict[str, Any] = {
@@ -168,6 +201,7 @@ DEFAULTS: dict[str, Any] = {
     "batch_size": 64,
     "lr": 2.0e-3,
     "max_batches_per_epoch": None,
+    "patience": 3,               # stop this many epochs after the best val epoch (None: all epochs)
     "val_windows": 512,          # val windows that select the epoch (evenly spaced)
     "windows": None,             # windows per real half; None: eval.max_windows
     "cache_dir": None,           # None: <paths.models>/_classifiers/<ds> (the evaluate stage's output)
@@ -175,6 +209,7 @@ DEFAULTS: dict[str, Any] = {
     "threads": 1,                # torch threads of the whole suite; None: eval.threads (module docstring)
     "spread_samples": 10,        # sample spread: draws per conditioning window
     "spread_from_frame": 5,      # sample spread: first (1-based) frame averaged over
+    "stochastic_check_windows": 4,  # windows generated under two seeds to tell stochastic methods apart
 }
 
 
@@ -189,13 +224,17 @@ def _options(ctx: EvalContext) -> dict[str, Any]:
         raise ValueError(f"conf/dataset/{ctx.name}.yaml: evaluate.generative has unknown option(s) {unknown}; "
                          f"known: {sorted(DEFAULTS)}")
     o = {**DEFAULTS, **given}
-    for k in ("frame_step", "epochs", "batch_size", "val_windows", "spread_samples", "spread_from_frame"):
+    for k in ("frame_step", "epochs", "batch_size", "val_windows", "spread_samples", "spread_from_frame",
+              "stochastic_check_windows"):
         if isinstance(o[k], bool) or not isinstance(o[k], int) or o[k] < 1:
             raise ValueError(f"evaluate.generative.{k} must be an integer >= 1, got {o[k]!r}")
     if o["threads"] is not None and (isinstance(o["threads"], bool) or not isinstance(o["threads"], int)
                                      or o["threads"] < 1):
         raise ValueError(f"evaluate.generative.threads must be an integer >= 1 or null, got {o['threads']!r}")
     o["threads"] = resolve_threads(o["threads"] or ctx.opts.get("threads") or 1)
+    if o["patience"] is not None and (isinstance(o["patience"], bool) or not isinstance(o["patience"], int)
+                                      or o["patience"] < 1):
+        raise ValueError(f"evaluate.generative.patience must be an integer >= 1 or null, got {o['patience']!r}")
     for k in ("max_batches_per_epoch", "windows"):
         if o[k] is not None and (isinstance(o[k], bool) or not isinstance(o[k], int) or o[k] < 2):
             raise ValueError(f"evaluate.generative.{k} must be an integer >= 2 or null, got {o[k]!r}")
@@ -251,7 +290,7 @@ def get_classifier(ctx: EvalContext, o: dict[str, Any]) -> tuple[rec.ActionClass
         raise ValueError(f"{ctx.name}: no '{fam}' train windows for the action classifier")
     threads = o["threads"]
     settings = {k: o[k] for k in ("family", "frame_step", "epochs", "batch_size", "lr", "max_batches_per_epoch",
-                                  "val_windows")}
+                                  "val_windows", "patience")}
     settings.update(seed=int(ctx.cfg.get("seed", 0)), threads=threads, torch=str(torch.__version__),
                     num_classes=train.num_classes, arch=dict(hidden_size=128, num_layers=2, feature_size=30))
     fp = classifier_fingerprint(ctx, fam, settings)
@@ -272,7 +311,8 @@ def get_classifier(ctx: EvalContext, o: dict[str, Any]) -> tuple[rec.ActionClass
     vx, vy = _x(val, vidx, step) if vidx is not None else (None, None)
     model, hist = rec.train_classifier(x, y, vx, vy, train.num_classes, epochs=o["epochs"],
                                        batch_size=o["batch_size"], lr=float(o["lr"]), seed=settings["seed"],
-                                       threads=threads, max_batches_per_epoch=o["max_batches_per_epoch"])
+                                       threads=threads, max_batches_per_epoch=o["max_batches_per_epoch"],
+                                       patience=o["patience"])
     sel = next(i for i, r in enumerate(hist) if r.get("selected"))
     meta = {"fingerprint": fp, "settings": settings, "history": hist, "selected_epoch": sel,
             "val_acc": hist[sel].get("val_acc", math.nan), "train_acc": hist[sel]["train_acc"],
@@ -375,9 +415,13 @@ def methods(ctx: EvalContext, data, T: int) -> list[Method]:
     """The rows to generate for the trained runs of the dataset (module docstring)."""
     from ..models.glogen import GloGen
     from ..models.locgen import LocGen, interpolate
-    from ..models.recurrent import RecurrentBaseline
     from ..models.vae_lstm import VAELSTM
     from ..models.zero_velocity import ZeroVelocity
+
+    def next_frame(model) -> bool:
+        """A seeded next-frame model: ``rollout(seed, controls, labels, length) -> (poses, controls)``."""
+        return (callable(getattr(model, "rollout", None)) and getattr(model, "seed_frames", None) is not None
+                and not isinstance(model, (GloGen, LocGen, VAELSTM)))
 
     out: list[Method] = []
     runs = ctx.available()
@@ -388,7 +432,7 @@ def methods(ctx: EvalContext, data, T: int) -> list[Method]:
         dev = next(model.parameters()).device
         fps = float(data.rep["fps"])
 
-        if isinstance(model, RecurrentBaseline) or isinstance(model, ZeroVelocity):
+        if isinstance(model, ZeroVelocity) or next_frame(model):
             S = min(int(model.seed_frames), T - 1)
             zero = isinstance(model, ZeroVelocity)
             mode = "" if zero or data.controls is None else f", controls {model.control_mode}"
@@ -440,7 +484,8 @@ def methods(ctx: EvalContext, data, T: int) -> list[Method]:
                 def glocal(b, s, f=sparse_rollout, loc=loc, k=k, S_dense=S_dense):
                     return Generated(_fit_length(loc.generate(f(b), M=k - 1), T), S_dense)
 
-                gname = "GlocalNet" if len(locgen_runs) == 1 else f"GlocalNet ({lrun})"
+                base = ctx.label(variant_of(ctx, run) or ctx.runs[run])        # GloGen (L_J) -> GloGen
+                gname = chain_label(name, base) + ("" if len(locgen_runs) == 1 else f" ({lrun})")
                 out.append(Method(gname, f"{run}+{lrun}", f"GloGen from {t} ground-truth sparse seed poses (every "
                                   f"{k} frames), class label; LocGen in-betweens (M = {k - 1})", glocal))
 
@@ -494,17 +539,19 @@ def sample_spread(positions: np.ndarray, root_index: int | None, start: int) -> 
     return float(sd[:, start:].mean())
 
 
-def _is_stochastic(ctx: EvalContext, m: Method, batch) -> bool:
-    """Whether two seeds give different output on the first 4 windows."""
-    from ..models.base import Batch
-
-    few = Batch(batch.pose[:4], None if batch.controls is None else batch.controls[:4],
-                None if batch.labels is None else batch.labels[:4], batch.every)
-    outs = []
-    for s in ctx.seeds[:2] if len(ctx.seeds) > 1 else (ctx.seeds[0], ctx.seeds[0] + 1):
-        ctx.torch_seed(s)
-        outs.append(m.fn(few, s).z)
-    return not np.array_equal(outs[0], outs[1])
+def jitter(positions: np.ndarray, start: int) -> float:
+    """Jitter of ``positions`` ``[N, T, J, D]`` (physical units): the mean over windows, joints and the
+    frames ``t = max(start, 1) .. T-2`` (0-based; ``start`` = the first generated frame) of the
+    acceleration's magnitude ``||x_{t+1} - 2 x_t + x_{t-1}||_2`` (per frame², in the positions' units;
+    module docstring). The first term reaches back to frame ``start - 1`` (the last seed frame)."""
+    x = np.asarray(positions, dtype=np.float64)
+    if x.ndim != 4:
+        raise ValueError(f"jitter: positions must be [N, T, J, D], got shape {x.shape}")
+    x = x[:, max(int(start), 1) - 1:]
+    if x.shape[1] < 3:
+        raise ValueError(f"jitter: needs >= 3 frames from frame {max(int(start), 1) - 1}, got {x.shape[1]}")
+    acc = x[:, 2:] - 2.0 * x[:, 1:-1] + x[:, :-2]                                 # [N, T', J, D]
+    return float(np.sqrt((acc ** 2).sum(-1)).mean())
 
 
 # ============================================================================ the suite
@@ -656,15 +703,46 @@ def _run(ctx: EvalContext, o: dict[str, Any]) -> None:
     root_name = (ctx.dataset_cfg.get("skeleton") or {}).get("root")
     root_j = names.index(root_name) if root_name in names else None
     units = "metres" if test.rep.get("space") == "3d" else "pixels"
-    spread_root = ctx.raw(test, ia)["root"] if test.rep.get("space") != "3d" else None
+    real_a = raw_a if phys else ctx.raw(test, ia)                              # physical windows of half A
+    spread_root = real_a["root"] if test.rep.get("space") != "3d" else None
+
+    # ---- jitter (module docstring): the real reference over whole windows; per seed length for "relative"
+    real_jitter: dict[int, float] = {}
+
+    def real_jitter_from(start: int) -> float:
+        if start not in real_jitter:
+            real_jitter[start] = jitter(real_a["pose"], start)
+        return real_jitter[start]
+
+    jit_frame = (f"{units} per frame² at {fps:g} fps, joint positions as generated ("
+                 + ("root-relative, facing-normalised: no trajectory" if units == "metres" else
+                    "centred image coordinates") + ")")
+
+    def add_jitter(method: str, per_seed: list[tuple[float, float]], kind: str, condition: str, note: str,
+                   run_name: str = "") -> None:
+        """``per_seed``: ``(jitter, jitter / real jitter over the same frames)`` per generation seed."""
+        for i, (column, key, what) in enumerate(((JITTER, JITTER_KEY, f"mean acceleration magnitude, {jit_frame}"),
+                                                 (JITTER_REL, JITTER_REL_KEY, "the jitter over the ground truth's of "
+                                                  "the same windows and frames (1 = as smooth as real motion)"))):
+            kw = dict(paper=PAPER, table=TABLE, compare_to=f"{ctx.name} (ours)", metric=GROUP, column=column,
+                      method=method, condition=condition, n=len(ia), kind=kind, run=run_name, key=key,
+                      note=f"{note}; {what}")
+            if len(per_seed) > 1:
+                ctx.add_seeds([d[i] for d in per_seed], **kw)
+            else:
+                ctx.add(value=per_seed[0][i], **kw)
+
+    add_jitter(REAL_ROW, [(real_jitter_from(1), 1.0)], "reference", "real test windows (half A)",
+               f"ground truth of half A, every frame of its {len(ia)} windows x {T} frames (the reference of "
+               "'relative', which is 1 here by definition)")
 
     # ---- the models
     timings = {}
     for m in methods(ctx, test, T):
         t0 = time.perf_counter()
-        stochastic = _is_stochastic(ctx, m, batch_a)
+        stochastic = ctx.is_stochastic(lambda b, seed: m.fn(b, seed).z, batch_a, o["stochastic_check_windows"])
         seeds = ctx.seeds if stochastic else [seed0]
-        per, per_phys = [], []
+        per, per_phys, per_jit = [], [], []
         for s in seeds:
             ctx.torch_seed(s)
             g = m.fn(batch_a, s)
@@ -673,8 +751,10 @@ def _run(ctx: EvalContext, o: dict[str, Any]) -> None:
             if not np.isfinite(g.z).all():
                 raise ValueError(f"{m.name} ({m.run}): generated motion holds NaN or inf")
             per.append(scores(np.ascontiguousarray(g.z.reshape(len(g.z), T, -1)[:, ::step]), s))
+            pose = ctx.physical(test, g.z, spread_root)                               # [N, T, J, D] m / px
+            jit = jitter(pose, g.seed_len)
+            per_jit.append((jit, jit / real_jitter_from(g.seed_len)))
             if phys:
-                pose = ctx.physical(test, g.z)
                 root = None
                 if has_traj and g.controls is not None:
                     root = integrate_controls(g.controls, fps, raw_a["root"][:, 0])      # [B, T, 3], batched
@@ -699,6 +779,11 @@ def _run(ctx: EvalContext, o: dict[str, Any]) -> None:
                 key="generative/sample_spread",
                 note=f"{spread_note}; std across draws of the root-relative joint positions, mean over joints and "
                      f"frames {o['spread_from_frame']}..{T} ({units})")
+        t0_jit = max(g.seed_len, 1)                                             # 0-based first centre
+        add_jitter(m.name, per_jit, kind, m.condition,
+                   (sto or "deterministic; ") + f"generated frames only: accelerations centred on frames "
+                   f"{t0_jit + 1}..{T - 1} of {T} (1-based; the first reaches back to frame {t0_jit}, the last seed "
+                   "frame)", m.run)
         if phys:
             pnote = (det + sto + "generated frames only (from the last seed frame), metres; "
                      + ("world positions from the model's own controls (integrated)" if "Foot skating ratio|ratio"

@@ -49,9 +49,24 @@ Metric (exact definition: :func:`motionsynth.metrics.errors.euclidean_per_frame_
   as followed in these methods"), which the paper does not give; the note says so. A second row
   ``GloGen + interpolation`` densifies the same GloGen poses by eq. 3 (linear interpolation)
   instead, isolating LocGen's part.
-* **samples and seeds**: every model here is deterministic in eval mode (no random draws), so
-  each cell is one value over the windows (``seeds = 1``, note "deterministic"); torch is seeded
-  anyway before each model (``ctx.seeds[0]``).
+* **GloGen's loss ablation** (GlocalNet Table 2: ``L = lambda_joint * L_J + lambda_flow * L_MF``,
+  eq. 5, trained with one term only): every trained run whose model is a GloGen and whose config
+  is a variant of another model's (``model.overrides_as``, e.g. ``conf/model/glogen_lj.yaml``,
+  label ``GloGen (L_J)``) gets the same two rows as the full GloGen under its own label:
+  ``GloGen (L_J)`` (its sparse roll-out densified by the same LocGen; LocGen's loss is not
+  ablated) and ``GloGen (L_J) + interpolation``. The full GloGen's rows are unchanged. No model is
+  recognised by its name: the family is the model class, the variant the config
+  (:func:`glogen_runs`). A variant must share the full GloGen's ``t_in`` and sparse spacing (the
+  common seed); one that does not is left out with a warning.
+* **samples and seeds**: stochastic or deterministic is measured, not declared
+  (:func:`is_stochastic`: the method's roll-out of the first ``stochastic_check_windows`` windows,
+  option ``evaluate.horizon.stochastic_check_windows``, default 4, under two seeds). A
+  deterministic method (GloGen, LocGen, the recurrent baselines in eval mode) gives one value per
+  cell (``seeds = 1``, note "deterministic"; torch is seeded anyway, ``ctx.seeds[0]``). A
+  stochastic one (``Vae Seq2Seq``: every roll-out draws its latent) is rolled out once per
+  evaluation seed (``ctx.seeds``, torch seeded with each); the cell is the mean +- std over the
+  seeds of the per-seed value (the paper reports one number, no spread). With training-seed
+  replicas as well, one value per (training seed, evaluation seed).
 * **windows and averaging**: per class (Indian dance = label ``indian``, martial arts =
   ``martial``, salsa), up to ``eval.max_windows`` test windows of that class, evenly spaced (all
   of them on the default data: 50 / 95 / 245). The windows overlap (stride 10 frames), so they
@@ -64,8 +79,9 @@ samples (ground truth and every method, the whole 96-frame window from the same 
 ``eval.animation.sequences`` test windows spread over the split (:meth:`EvalContext.pick`), in
 the store's root-relative facing-normalised frame (no trajectory: the models predict none).
 
-Shared helpers (also used by the ``interpolation`` suite): :func:`skeleton`, :func:`seed_length`,
+Shared helpers (also used by the ``interpolation`` and ``mmd`` suites): :func:`skeleton`, :func:`seed_length`,
 :func:`methods` (one seeded roll-out function per trained run, the GlocalNet chain included),
+:func:`glogen_runs` / :func:`variant_of` / :func:`ablation_note` (GloGen's family and its loss ablations),
 :func:`rollout` / :func:`rollout_normalised`, :func:`spread`, :func:`sample_meta`, :func:`class_names`.
 """
 
@@ -79,6 +95,7 @@ from typing import Any, Callable
 
 import numpy as np
 import torch
+import yaml
 
 from ..metrics.errors import DEFAULT_HORIZONS_MS, euclidean_per_frame_values, horizon_frames
 from ..models.base import Batch
@@ -91,9 +108,12 @@ log = logging.getLogger(__name__)
 PAPER = "battan2021_glocalnet"
 METRIC = "Euclidean distance per frame"
 GLOCALNET = "GlocalNet"                     # sample key of the GloGen + LocGen chain
-GLOGEN_INTERP = "GloGen + interpolation"
+INTERP_SUFFIX = " + interpolation"        # GloGen's sparse roll-out densified by eq. 3: "<label> + interpolation"
+GLOGEN_INTERP = "GloGen" + INTERP_SUFFIX
 DEFAULT_CLASSES = {"indian": "CMU Indian dance", "martial": "CMU martial arts", "salsa": "CMU salsa (ours only)"}
 MAPPINGS = ("interpolate", "round")
+#: windows rolled out under two seeds to tell a stochastic method (option evaluate.horizon.stochastic_check_windows)
+STOCHASTIC_CHECK_WINDOWS = 4
 
 
 # ============================================================================ shared helpers
@@ -151,12 +171,54 @@ class Method:
     #: the same method trained with other seeds (``<run>-seed<k>`` runs): ``(run, fn)`` each; a row then
     #: reports the mean +- std over the training seeds (this one, seed 0, first)
     replicas: list = field(default_factory=list)
+    #: GloGen-family rows: ``CHAIN`` (GloGen + LocGen), ``INTERP`` (GloGen + eq. 3); "" for the others
+    role: str = ""
+    #: the run's config is a variant of another model's (``model.overrides_as``): GloGen's loss ablations
+    variant: bool = False
+    #: what the row is, put before the suite's own note (GloGen-family rows)
+    note: str = ""
+
+
+CHAIN, INTERP = "chain", "interpolation"
 
 
 def _check_every(run: str, model: Any, every: int) -> None:
     if int(model.spec.every) != int(every):
         raise ValueError(f"run {run}: trained on windows every {model.spec.every} frames, but the test "
                          f"windows are every {every}")
+
+
+def variant_of(ctx: EvalContext, run: str) -> str | None:
+    """The model a run's config is a variant of (``model.overrides_as`` of ``models/<ds>/<run>/config.yaml``,
+    e.g. ``glogen`` for GloGen's loss ablations ``glogen_lj`` / ``glogen_lmf``), else ``None``."""
+    path = ctx.run_dir(run) / "config.yaml"
+    if not path.exists():
+        return None
+    cfg = yaml.safe_load(path.read_text()) or {}
+    return (cfg.get("model") or {}).get("overrides_as") or None
+
+
+def glogen_runs(ctx: EvalContext, runs: list[str]) -> tuple[list[str], list[str]]:
+    """The GloGen-family runs among ``runs``: ``(plain, variants)``. A run is GloGen-family when its model
+    is a :class:`~motionsynth.models.glogen.GloGen` (the class, not the name); a *variant* when its
+    config is a variant of another model's (:func:`variant_of`: GlocalNet Table 2's loss ablations)."""
+    from ..models.glogen import GloGen
+
+    family = [r for r in runs if isinstance(ctx.model(r)[0], GloGen)]
+    variants = [r for r in family if variant_of(ctx, r)]
+    return [r for r in family if r not in variants], variants
+
+
+def ablation_note(model: Any) -> str:
+    """What a GloGen loss-ablation row is: its eq.-5 weights ``L = lambda_joint * L_J + lambda_flow * L_MF``."""
+    return (f"GloGen's loss ablation (GlocalNet Table 2, eq. 5): trained with lambda_joint = {model.lambda_joint:g} "
+            f"(L_J, eq. 6), lambda_flow = {model.lambda_flow:g} (L_MF, eqs. 7-8)")
+
+
+def chain_label(label: str, base: str) -> str:
+    """The animation key of a GloGen-family chain: ``GlocalNet`` for the full GloGen (``label == base``), the
+    label's qualifier kept for a variant (``GloGen (L_J)`` -> ``GlocalNet (L_J)``)."""
+    return GLOCALNET + label[len(base):] if label.startswith(base) else f"{GLOCALNET} ({label})"
 
 
 def _glocal(glogen: Any, locgen: Any | None, every: int) -> Callable[[Batch, int], torch.Tensor]:
@@ -184,45 +246,69 @@ def _seeded(model: Any, S: int) -> Callable[[Batch, int], torch.Tensor]:
     return fn
 
 
-def methods(ctx: EvalContext, every: int, default_t_in: int = 5) -> tuple[list[Method], int]:
+def methods(ctx: EvalContext, every: int, default_t_in: int = 5,
+            variants: bool = False) -> tuple[list[Method], int]:
     """Every trained plain run of the dataset as a :class:`Method`, all seeded from the same
     ground-truth frames, and that seed's length ``S`` (dense frames).
 
     GloGen's ``t_in`` seed poses fix ``S = (t_in - 1) * every + 1`` (``default_t_in`` when no GloGen
     run is trained). With GloGen: ``GloGen`` (+ LocGen when trained: the GlocalNet chain) and
     ``GloGen + interpolation``; LocGen alone is no roll-out and is used only inside the chain.
+    GloGen-family runs are found by class and config (:func:`glogen_runs`), never by name; with
+    ``variants=True`` GloGen's loss ablations get the same two rows under their own labels
+    (``GloGen (L_J)``, ``GloGen (L_J) + interpolation``; module docstring), else they are left out.
     Trivial predictors (zero-velocity, the mean pose) are ``reference`` rows; VAE-LSTM-style
     control-driven models are left out."""
+    from ..models.locgen import LocGen
+    from ..models.vae_lstm import VAELSTM
+
     runs = ctx.available(variant=None)
-    glogen_runs = [r for r in runs if ctx.runs[r] == "glogen"]
-    locgen_runs = [r for r in runs if ctx.runs[r] == "locgen"]
-    glogen = locgen = None
-    if glogen_runs:
-        glogen = ctx.model(glogen_runs[0])[0]
-        _check_every(glogen_runs[0], glogen, every)
-    if locgen_runs:
-        locgen = ctx.model(locgen_runs[0])[0]
+    plain, ablations = glogen_runs(ctx, runs)
+    locgen_runs = [r for r in runs if isinstance(ctx.model(r)[0], LocGen)]
+    family = plain + ablations
+    glogen = ctx.model(family[0])[0] if family else None
+    if glogen is not None:
+        _check_every(family[0], glogen, every)
+    locgen = ctx.model(locgen_runs[0])[0] if locgen_runs else None
     S = seed_length(glogen.t if glogen is not None else int(default_t_in), every)
     out: list[Method] = []
-    if glogen is not None:
-        reps = [(r, ctx.model(r)[0]) for r in ctx.replicas(glogen_runs[0])]
-        if locgen is not None:
-            out.append(Method(ctx.label("glogen"), f"{glogen_runs[0]}+{locgen_runs[0]}", "model",
-                              _glocal(glogen, locgen, every), GLOCALNET,
-                              [(f"{r}+{locgen_runs[0]}", _glocal(g, locgen, every)) for r, g in reps]))
-        else:
-            log.warning("%s: no trained LocGen run: the GlocalNet chain (GloGen + LocGen) is left out", ctx.name)
-        out.append(Method(GLOGEN_INTERP, glogen_runs[0], "model", _glocal(glogen, None, every),
-                          replicas=[(r, _glocal(g, None, every)) for r, g in reps]))
-    for run in runs:
-        name = ctx.runs[run]
-        if name in ("glogen", "locgen"):
+    for i, run in enumerate(family):
+        is_variant = run in ablations
+        if is_variant and not variants:
+            log.info("%s: run %s (a GloGen variant) is not scored by this suite", ctx.name, run)
             continue
+        g = ctx.model(run)[0]
+        if i and (int(g.t) != int(glogen.t) or int(g.spec.every) != int(every)):
+            log.warning("%s: run %s has t_in %d / every %d, not the common %d / %d; left out", ctx.name, run,
+                        g.t, g.spec.every, glogen.t, every)
+            continue
+        label = ctx.label(ctx.runs[run])
+        base = ctx.label(variant_of(ctx, run)) if is_variant else label     # GloGen (L_J) -> GloGen
+        reps = [(r, ctx.model(r)[0]) for r in ctx.replicas(run)]
+        what = f"; {ablation_note(g)}" if is_variant else ""
+        if locgen is not None:
+            out.append(Method(label, f"{run}+{locgen_runs[0]}", "model", _glocal(g, locgen, every),
+                              chain_label(label, base),
+                              [(f"{r}+{locgen_runs[0]}", _glocal(x, locgen, every)) for r, x in reps],
+                              role=CHAIN, variant=is_variant,
+                              note=f"GlocalNet chain: {label} sparse roll-out (every {every}) densified by LocGen, set "
+                                   f"beside the paper's 'Our Method (GloGen)' (whose Table-4 training setting the "
+                                   f"paper does not give){what}"))
+        else:
+            log.warning("%s: no trained LocGen run: the GlocalNet chain (%s + LocGen) is left out", ctx.name, label)
+        out.append(Method(label + INTERP_SUFFIX, run, "model", _glocal(g, None, every),
+                          replicas=[(r, _glocal(x, None, every)) for r, x in reps], role=INTERP, variant=is_variant,
+                          note=f"{label} sparse roll-out densified by linear interpolation (eq. 3), beyond the "
+                               f"paper{what}"))
+    for run in runs:
+        if run in family or run in locgen_runs:
+            continue
+        name = ctx.runs[run]
         model = ctx.model(run)[0]
         if getattr(model, "uses_controls", False) and getattr(model, "control_mode", "predict") == "given":
             log.warning("%s: run %s needs given controls; left out", ctx.name, run)
             continue
-        if name == "vae_lstm":
+        if isinstance(model, VAELSTM):
             log.warning("%s: run %s (control-driven VAE-LSTM) has no seeded roll-out here; left out", ctx.name, run)
             continue
         out.append(Method(ctx.label(name), run, ctx.kind(run), _seeded(model, S),
@@ -230,10 +316,11 @@ def methods(ctx: EvalContext, every: int, default_t_in: int = 5) -> tuple[list[M
     return out, S
 
 
-def rollout_normalised(ctx: EvalContext, method: Method, batch: Batch, length: int) -> torch.Tensor:
+def rollout_normalised(ctx: EvalContext, method: Method, batch: Batch, length: int,
+                       seed: int | None = None) -> torch.Tensor:
     """``method``'s dense roll-out of ``batch``, normalised ``[B, length, J, D]`` (torch seeded with
-    ``ctx.seeds[0]`` first; the shape is checked)."""
-    ctx.torch_seed(ctx.seeds[0])
+    ``seed``, default ``ctx.seeds[0]``, first; the shape is checked)."""
+    ctx.torch_seed(ctx.seeds[0] if seed is None else seed)
     z = method.fn(batch, length)
     want = (batch.size, length) + tuple(batch.pose.shape[2:])
     if tuple(z.shape) != want:
@@ -241,9 +328,16 @@ def rollout_normalised(ctx: EvalContext, method: Method, batch: Batch, length: i
     return z
 
 
-def rollout(ctx: EvalContext, data: WindowData, method: Method, batch: Batch, length: int) -> np.ndarray:
+def is_stochastic(ctx: EvalContext, method: Method, batch: Batch, length: int, windows: int) -> bool:
+    """Whether ``method``'s roll-out (``length`` frames) differs between two torch seeds on the first
+    ``windows`` windows of ``batch`` (:meth:`EvalContext.is_stochastic`)."""
+    return ctx.is_stochastic(lambda b, seed: rollout_normalised(ctx, method, b, length, seed), batch, windows)
+
+
+def rollout(ctx: EvalContext, data: WindowData, method: Method, batch: Batch, length: int,
+            seed: int | None = None) -> np.ndarray:
     """``method``'s dense roll-out of ``batch`` in physical units, ``[B, length, J, D]`` float64."""
-    return ctx.physical(data, rollout_normalised(ctx, method, batch, length))
+    return ctx.physical(data, rollout_normalised(ctx, method, batch, length, seed))
 
 
 def sample_meta(ctx: EvalContext, data: WindowData, sk: Skeleton, S: int, title: str) -> dict[str, Any]:
@@ -266,6 +360,10 @@ def run(ctx: EvalContext) -> None:
     opts = dict(ctx.options.get("horizon") or {})
     horizons = [int(h) for h in opts.get("horizons_ms", DEFAULT_HORIZONS_MS)]
     mapping = str(opts.get("frame_mapping", "interpolate"))
+    n_check = opts.get("stochastic_check_windows", STOCHASTIC_CHECK_WINDOWS)
+    if isinstance(n_check, bool) or not isinstance(n_check, int) or n_check < 1:
+        raise ValueError(f"conf/dataset/{ctx.name}.yaml: evaluate.horizon.stochastic_check_windows must be an "
+                         f"integer >= 1, got {n_check!r}")
     if mapping not in MAPPINGS:
         raise ValueError(f"conf/dataset/{ctx.name}.yaml: evaluate.horizon.frame_mapping must be one of "
                          f"{MAPPINGS}, got {mapping!r}")
@@ -276,7 +374,7 @@ def run(ctx: EvalContext) -> None:
         raise ValueError(f"{ctx.name}: no glocal test windows")
     fps, every, T = float(data.rep["fps"]), data.every, data.length
     sk = skeleton(ctx)
-    meths, S = methods(ctx, every)
+    meths, S = methods(ctx, every, variants=True)
     if not meths:
         log.warning("%s: horizon: no trained runs; nothing to evaluate", ctx.name)
     k = (horizon_frames(horizons, fps).astype(float) if mapping == "round"
@@ -331,20 +429,22 @@ def run(ctx: EvalContext) -> None:
 
     score = dict(root_index=sk.root_index, seed_frames=S, frame_mapping=mapping)
     for meth in meths:
-        values = [euclidean_per_frame_values(rollout(ctx, data, Method(meth.label, r, meth.kind, fn), batch, L),
-                                             gt, fps, horizons, **score)                # [B, H] per training seed
-                  for r, fn in [(meth.run, meth.fn), *meth.replicas]]
-        note = f"deterministic; {note_space}"
+        stochastic = is_stochastic(ctx, meth, batch, L, n_check)
+        seeds = ctx.seeds if stochastic else ctx.seeds[:1]
+        values = [euclidean_per_frame_values(rollout(ctx, data, Method(meth.label, r, meth.kind, fn), batch, L, s),
+                                             gt, fps, horizons, **score)        # [B, H] per training x eval seed
+                  for r, fn in [(meth.run, meth.fn), *meth.replicas] for s in seeds]
+        how = (f"stochastic (measured): one roll-out per evaluation seed {list(seeds)}" if stochastic
+               else "deterministic")
+        note = f"{how}; {note_space}"
         if meth.replicas:
-            note = (f"mean +- std over {len(values)} training seeds (runs {meth.run}, "
-                    f"{', '.join(r for r, _ in meth.replicas)}); each deterministic; {note_space}")
-        if meth.sample_key == GLOCALNET:
-            note = (f"GlocalNet chain: GloGen sparse roll-out (every {every}) densified by LocGen, set beside the "
-                    "paper's 'Our Method (GloGen)' (whose Table-4 training setting the paper does not give); "
-                    + note)
-        elif meth.label == GLOGEN_INTERP:
-            note = "GloGen sparse roll-out densified by linear interpolation (eq. 3), beyond the paper; " + note
-        add_rows(meth.label, meth.run, meth.kind, values if meth.replicas else values[0], note)
+            note = (f"mean +- std over {len(meth.replicas) + 1} training seeds (runs {meth.run}, "
+                    f"{', '.join(r for r, _ in meth.replicas)}); each {how}; {note_space}")
+        elif stochastic:
+            note = f"mean +- std over {len(values)} evaluation seeds; {note}"
+        if meth.note:
+            note = f"{meth.note}; {note}"
+        add_rows(meth.label, meth.run, meth.kind, values if len(values) > 1 else values[0], note)
 
     # calibration: the frozen last seed pose in acLSTM's world-oriented root-relative frame
     world = ctx.global_positions(raw["pose"][:, :L], raw["root"][:, :L])

@@ -24,10 +24,13 @@ ordering of methods and the growth over frames are).
 
 * **Table 1, "motion prediction error"**: global joint positions, ``to_global(pose, root)``.
 
-  - *Baselines* (ERD, LSTM-3LR, Seq2Seq, acLSTM, Scheduled Sampling; their plain runs,
-    ``control_mode: predict``): given the first ``seed_frames`` (60) ground-truth frames, pose
-    and controls, they roll out pose AND controls; the predicted controls of frames ``S..T-1``
-    are de-normalised with the train statistics and integrated
+  - *Baselines*: every next-frame model with the shared roll-out interface
+    (:func:`rolls_out`: a ``rollout(seed, controls, labels, length)`` returning pose and controls,
+    a ``control_mode`` and ``seed_frames``, :mod:`motionsynth.models.recurrent`): ERD, LSTM-3LR,
+    cRBM CD-1, cRBM CD-15 (the paper's rows, in its order), then Seq2Seq, acLSTM, Scheduled
+    Sampling; their plain runs, ``control_mode: predict``. Given the first ``seed_frames`` (60)
+    ground-truth frames, pose and controls, they roll out pose AND controls; the predicted
+    controls of frames ``S..T-1`` are de-normalised with the train statistics and integrated
     (:func:`~motionsynth.data.controls.integrate_controls`) from the ground-truth root at the
     last seed frame ``S-1``. The step ``S-1 -> S`` uses the seed's control of frame ``S-1``,
     which is ground truth (controls are forward differences of the root, so that one step is
@@ -61,14 +64,23 @@ ordering of methods and the growth over frames are).
   controls; the error ignores translation and rotation: our prepared poses are already
   facing-normalised, and ``kind="pose"`` subtracts each frame's root joint (``Hips``, the
   paper's origin "at the hip of the character") from prediction and ground truth.
-  Baselines: the ``<model>-controls_given`` runs (``control_mode: given``, their
-  ``seed_frames`` = 4, "4 initial frames; control"); VAE-LSTM from 4 and 0 frames (the same
+  Baselines: the ``<model>-controls_given`` runs of the same models (``control_mode: given``,
+  their ``seed_frames`` = 4, "4 initial frames; control"); VAE-LSTM from 4 and 0 frames (the same
   samples as Table 1, per seed); Zero-velocity repeats the 4th frame
   (``pose_seed_frames``, "4 initial frames; no control").
 
 Stochastic vs deterministic: VAE-LSTM draws ``z_1`` (prior or posterior): mean +- std over
-``ctx.seeds`` (``torch`` seeded with each seed before each generation). The recurrent
-baselines and zero-velocity are deterministic: one value, ``std`` NaN.
+``ctx.seeds`` (``torch`` seeded with each seed before each generation). For the baselines it is
+measured, not declared (:func:`is_stochastic`: the first ``stochastic_check_windows`` windows
+rolled out under two seeds): the cRBM samples its hidden units at every Gibbs step, so its rows
+are the mean +- std over ``ctx.seeds`` (at most ``stochastic_seeds`` of them), one roll-out per
+window and seed, ``torch`` seeded before each; the recurrent baselines and zero-velocity are
+deterministic: one value, ``std`` NaN. The paper gives one number per cell and no seeds.
+Cost (measured on the quiet 2-core machine, 256 windows, 5 seeds): a cRBM run adds 14 s (Table 1,
+180 frames x 30 Gibbs steps per frame) to 18 s (Table 2, 236 frames) to the suite (the four cRBM
+runs 62 s; all the other runs together 6 s); bandai2_locomotion sets ``stochastic_seeds: 2``, which
+cuts that by more than half (the spread over seeds of the cRBM's error is tiny at our budget: its hidden units move the
+roll-out little, see :mod:`motionsynth.models.crbm`).
 
 Outputs
 -------
@@ -77,12 +89,16 @@ Rows ``Table 1`` / ``Table 2`` with the published ``metric`` / ``column`` / ``me
 ``table2_pose/frame210``; curves ``motion_error_vs_frame`` and ``pose_error_vs_frame`` (every
 frame 1..240, mean over windows and seeds); animation samples: the first
 ``eval.animation.sequences`` picked windows, ground truth and every Table-1 method (VAE-LSTM:
-the first seed) in global positions (metres) ``[N, 240, 21, 3]``.
+the first seed; the cRBM: its first seed too) in global positions (metres) ``[N, 240, 21, 3]``.
+Within each table the rows follow the papers' order: the baselines (:data:`BASELINE_ORDER`),
+VAE-LSTM, then the references.
 
 Options (``conf/dataset/<ds>.yaml: evaluate.locomotion``): ``family`` (window family,
 ``vae_lstm``), ``frames``, ``reduction`` (see errors.py), ``vae_trajectory``
 (``ground_truth`` | ``integrate``), ``pose_seed_frames`` (Table-2 zero-velocity seed, 4),
-``compare_to`` (the published dataset this one stands in for; none: ``"<ds> (ours)"``).
+``compare_to`` (the published dataset this one stands in for; none: ``"<ds> (ours)"``),
+``stochastic_check_windows`` (windows of the stochasticity check, 4), ``stochastic_seeds`` (at most
+this many of ``eval.seeds`` for a stochastic baseline; none: all).
 """
 
 from __future__ import annotations
@@ -91,13 +107,14 @@ import logging
 from typing import Any
 
 import numpy as np
+import torch
 
 from ..data.controls import integrate_controls, to_global
 from ..data.types import Skeleton
 from ..metrics.errors import REDUCTIONS, VAE_LSTM_FRAMES, prediction_error_values
-from ..models.base import one_thread
+from ..models.base import Batch, one_thread
 from ..models.mean_pose import MeanPose
-from ..models.recurrent import RecurrentBaseline
+from ..models.recurrent import CONTROL_MODES
 from ..models.zero_velocity import ZeroVelocity
 from .context import EvalContext
 
@@ -107,8 +124,13 @@ PAPER = "habibie2017_vae_lstm"
 T1 = {"table": "Table 1", "metric": "motion prediction error", "key": "table1_motion", "curve": "motion_error_vs_frame"}
 T2 = {"table": "Table 2", "metric": "pose prediction error (root-relative)", "key": "table2_pose",
       "curve": "pose_error_vs_frame"}
-#: row order of the baselines (the papers' order); other recurrent models of the dataset follow
-BASELINE_ORDER = ("erd", "lstm3lr", "seq2seq", "aclstm", "scheduled_sampling")
+#: row order of the baselines: the VAE-LSTM paper's (ERD, LSTM-3LR, cRBM CD-1, CD-15), then ours beyond it;
+#: other next-frame models of the dataset follow by name
+BASELINE_ORDER = ("erd", "lstm3lr", "crbm", "crbm_cd15", "seq2seq", "aclstm", "scheduled_sampling")
+#: windows rolled out under two seeds to tell a stochastic baseline (option stochastic_check_windows)
+STOCHASTIC_CHECK_WINDOWS = 4
+OPTIONS = ("family", "frames", "reduction", "vae_trajectory", "pose_seed_frames", "compare_to",
+           "stochastic_check_windows", "stochastic_seeds")
 VAE, ZERO = "vae_lstm", "zero_velocity"
 TRAJECTORIES = ("ground_truth", "integrate")
 UNITS = {"mse": "m^2", "mse_coord": "m^2", "rmse": "m", "mpjpe": "m", "l2": "m"}
@@ -170,16 +192,18 @@ class _Table:
         self.compare_to = compare_to
 
     def add(self, method: str, per_seed: list[np.ndarray], *, condition: str, run: str, note: str,
-            kind: str = "model") -> None:
-        """``per_seed``: one ``[B, T]`` per-window, per-frame array per seed (one for deterministic)."""
+            kind: str = "model", stochastic: bool | None = None) -> None:
+        """``per_seed``: one ``[B, T]`` per-window, per-frame array per seed (one for deterministic);
+        ``stochastic``: whether the method samples (default: more than one array)."""
         curves = np.stack([v.mean(axis=0) for v in per_seed])                  # [seeds, T]
         common = dict(paper=PAPER, table=self.spec["table"], compare_to=self.compare_to, metric=self.spec["metric"],
                       method=method, condition=condition, n=self.n, run=run, kind=kind)
-        stochastic = len(per_seed) > 1
+        stochastic = len(per_seed) > 1 if stochastic is None else bool(stochastic)
+        how = (("stochastic: mean +- std over seeds" if len(per_seed) > 1 else "stochastic: one seed")
+               if stochastic else "deterministic")
         for f in self.frames:
             kw = dict(common, column=f"frame{f}", key=f"{self.spec['key']}/frame{f}",
-                      note=f"{note}; {'stochastic: mean +- std over seeds' if stochastic else 'deterministic'}"
-                           f"; {self.note_tail}")
+                      note=f"{note}; {how}; {self.note_tail}")
             if stochastic:
                 self.ctx.add_seeds(curves[:, f - 1], **kw)
             else:
@@ -189,7 +213,7 @@ class _Table:
 
 def _options(ctx: EvalContext) -> dict[str, Any]:
     o = dict(ctx.options.get("locomotion") or {})
-    unknown = set(o) - {"family", "frames", "reduction", "vae_trajectory", "pose_seed_frames", "compare_to"}
+    unknown = set(o) - set(OPTIONS)
     if unknown:
         raise ValueError(f"conf/dataset/{ctx.name}.yaml: evaluate.locomotion has unknown option(s) {sorted(unknown)}")
     opts = {"family": o.get("family", ctx.dataset_cfg["training"].get("family", "vae_lstm")),
@@ -197,7 +221,9 @@ def _options(ctx: EvalContext) -> dict[str, Any]:
             "reduction": o.get("reduction", "mse"),
             "vae_trajectory": o.get("vae_trajectory", "ground_truth"),
             "pose_seed_frames": int(o.get("pose_seed_frames", 4)),
-            "compare_to": o.get("compare_to")}
+            "compare_to": o.get("compare_to"),
+            "stochastic_check_windows": o.get("stochastic_check_windows", STOCHASTIC_CHECK_WINDOWS),
+            "stochastic_seeds": o.get("stochastic_seeds")}
     if opts["reduction"] not in REDUCTIONS:
         raise ValueError(f"evaluate.locomotion.reduction must be one of {REDUCTIONS}, got {opts['reduction']!r}")
     if opts["vae_trajectory"] not in TRAJECTORIES:
@@ -205,6 +231,11 @@ def _options(ctx: EvalContext) -> dict[str, Any]:
                          f"got {opts['vae_trajectory']!r}")
     if not opts["frames"] or min(opts["frames"]) < 1:
         raise ValueError(f"evaluate.locomotion.frames must be 1-based frame numbers, got {opts['frames']}")
+    for name, optional in (("stochastic_check_windows", False), ("stochastic_seeds", True)):
+        v = opts[name]
+        if (v is not None or not optional) and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+            raise ValueError(f"evaluate.locomotion.{name} must be an integer >= 1{' or null' if optional else ''}, "
+                             f"got {v!r}")
     return opts
 
 
@@ -215,16 +246,35 @@ def _references(ctx: EvalContext) -> list[str]:
     return sorted(runs, key=lambda r: (ctx.runs[r] != ZERO, r))
 
 
+def rolls_out(model: Any) -> bool:
+    """Whether ``model`` is a next-frame model with the shared roll-out interface
+    (:mod:`motionsynth.models.recurrent`): ``rollout(seed, controls, labels, length) -> (pose, controls)``,
+    a ``control_mode`` (``predict`` | ``given``) and ``seed_frames``. The recurrent baselines and the
+    cRBM are; VAE-LSTM, zero-velocity and the mean pose are not."""
+    return (callable(getattr(model, "rollout", None)) and getattr(model, "control_mode", None) in CONTROL_MODES
+            and hasattr(model, "seed_frames"))
+
+
 def _baselines(ctx: EvalContext, variant: str | None) -> list[str]:
-    """Trained recurrent-baseline runs of ``variant`` (papers' order first)."""
+    """Trained runs of ``variant`` whose model :func:`rolls_out` (papers' order first, :data:`BASELINE_ORDER`)."""
     models = sorted({m for m in ctx.runs.values() if m not in (VAE, ZERO)},
                     key=lambda m: (BASELINE_ORDER.index(m) if m in BASELINE_ORDER else len(BASELINE_ORDER), m))
-    out = []
-    for m in models:
-        for run in ctx.available(m, variant):
-            if isinstance(ctx.model(run)[0], RecurrentBaseline):
-                out.append(run)
-    return out
+    return [run for m in models for run in ctx.available(m, variant) if rolls_out(ctx.model(run)[0])]
+
+
+def roll(ctx: EvalContext, model: Any, batch: Batch, S: int, length: int, seed: int | None = None):
+    """``model.rollout`` of ``batch`` from its first ``S`` frames to ``length`` (normalised pose
+    ``[B, length, J, D]`` and controls ``[B, length, 3]``), on one thread, ``torch`` seeded with ``seed``."""
+    if seed is not None:
+        ctx.torch_seed(seed)
+    with one_thread(ctx.device):
+        return model.rollout(batch.pose[:, :S], batch.controls, batch.labels, length=length)
+
+
+def is_stochastic(ctx: EvalContext, model: Any, batch: Batch, S: int, length: int, windows: int) -> bool:
+    """Whether ``model``'s roll-out from ``S`` seed frames differs between two seeds on the first
+    ``windows`` windows of ``batch`` (:meth:`EvalContext.is_stochastic`)."""
+    return ctx.is_stochastic(lambda b, seed: roll(ctx, model, b, S, length, seed)[0], batch, windows)
 
 
 def run(ctx: EvalContext) -> None:
@@ -275,22 +325,51 @@ def run(ctx: EvalContext) -> None:
     def pose(pose_phys):
         return pose_error(pose_phys, gt_pose, all_frames, root_j, red)
 
+    def baseline_seeds(model, S: int) -> tuple[list[int], bool]:
+        """The seeds a baseline is rolled out under: all evaluation seeds (at most ``stochastic_seeds``)
+        when it samples, else the first."""
+        if not is_stochastic(ctx, model, batch, S, T, opts["stochastic_check_windows"]):
+            return ctx.seeds[:1], False
+        k = opts["stochastic_seeds"]
+        return (ctx.seeds if k is None else ctx.seeds[:k]), True
+
+    def seeds_note(seeds: list[int], stochastic: bool) -> str:
+        return f"; one roll-out per window and seed {seeds}" if stochastic else ""
+
     # ---------------------------------------------------------------- Table 1 baselines: own controls
     for r in _baselines(ctx, None):
         model, train = ctx.model(r)
         if not model.predict_controls:
             raise ValueError(f"run {r}: Table 1 needs control_mode 'predict' (plain run), got {model.control_mode!r}")
         S = int(model.seed_frames)
-        with one_thread(ctx.device):
-            z, c = model.rollout(batch.pose[:, :S], batch.controls, batch.labels, length=batch.pose.shape[1])
-        p = ctx.physical(train, z)
-        ctrl = c.detach().cpu().numpy().astype(np.float64) * train.ctrl_std + train.ctrl_mean
-        root = root_from_controls(gt_root, ctrl, fps, S)
         label = ctx.label(ctx.runs[r])
-        t1.add(label, [motion(p, root)], condition=f"{S} initial frames; no control", run=r,
-               note=f"own predicted controls integrated from the ground-truth root of frame {S}")
-        if n_anim:
-            samples[label], seed_of[label] = to_global(p[:n_anim], root[:n_anim]), S
+        seeds, stochastic = baseline_seeds(model, S)
+        m1 = []
+        for i, s in enumerate(seeds):
+            z, c = roll(ctx, model, batch, S, T, s)
+            p = ctx.physical(train, z)
+            ctrl = c.detach().cpu().numpy().astype(np.float64) * train.ctrl_std + train.ctrl_mean
+            root = root_from_controls(gt_root, ctrl, fps, S)
+            m1.append(motion(p, root))
+            if i == 0 and n_anim:
+                samples[label], seed_of[label] = to_global(p[:n_anim], root[:n_anim]), S
+        t1.add(label, m1, condition=f"{S} initial frames; no control", run=r, stochastic=stochastic,
+               note=f"own predicted controls integrated from the ground-truth root of frame {S}"
+                    + seeds_note(seeds, stochastic))
+
+    # ---------------------------------------------------------------- Table 2 baselines: controls given
+    for r in _baselines(ctx, "controls_given"):
+        model, train = ctx.model(r)
+        if not model.given_controls:
+            raise ValueError(f"run {r}: Table 2 needs control_mode 'given', got {model.control_mode!r}")
+        S = int(model.seed_frames)
+        if S != opts["pose_seed_frames"]:
+            log.warning("%s: run %s has seed_frames=%d, Table 2's protocol is %d", ctx.name, r, S,
+                        opts["pose_seed_frames"])
+        seeds, stochastic = baseline_seeds(model, S)
+        m2 = [pose(ctx.physical(train, roll(ctx, model, batch, S, T, s)[0])) for s in seeds]
+        t2.add(ctx.label(ctx.runs[r]), m2, condition=f"{S} initial frames; control", run=r, stochastic=stochastic,
+               note="ground-truth controls as input at every step" + seeds_note(seeds, stochastic))
 
     # ---------------------------------------------------------------- VAE-LSTM: ground-truth controls
     for r in ctx.available(VAE, None):
@@ -319,20 +398,6 @@ def run(ctx: EvalContext) -> None:
                    note=f"{how}, ground-truth controls; {traj}; one sample per window and seed")
             t2.add(method, m2, condition=f"{S} initial frames; control", run=r,
                    note=f"{how}, ground-truth controls; one sample per window and seed")
-
-    # ---------------------------------------------------------------- Table 2 baselines: controls given
-    for r in _baselines(ctx, "controls_given"):
-        model, train = ctx.model(r)
-        if not model.given_controls:
-            raise ValueError(f"run {r}: Table 2 needs control_mode 'given', got {model.control_mode!r}")
-        S = int(model.seed_frames)
-        if S != opts["pose_seed_frames"]:
-            log.warning("%s: run %s has seed_frames=%d, Table 2's protocol is %d", ctx.name, r, S,
-                        opts["pose_seed_frames"])
-        with one_thread(ctx.device):
-            p = ctx.physical(train, model.predict(batch))
-        t2.add(ctx.label(ctx.runs[r]), [pose(p)], condition=f"{S} initial frames; control", run=r,
-               note="ground-truth controls as input at every step")
 
     # ---------------------------------------------------------------- zero-velocity, the mean pose (references)
     for r in _references(ctx):

@@ -25,6 +25,15 @@ Calibration / reference rows (``kind="reference"``) follow in a separate table u
 Published blocks without any counterpart of ours (e.g. CMU walking) are shown on their own, and a
 table whose datasets have no results says **not evaluated** above the published numbers.
 
+A table no suite writes (``ours_from``; GlocalNet Table 2, GloGen's loss ablation, published on NTU
+RGB+D 2-D, which we do not have) gathers our rows from other tables (:func:`gather`: the rows of the
+listed ``(paper, table)`` pairs of the listed methods, renamed as the paper writes them, plus named
+reference rows; no number is changed), shows the published blocks apart under the table's
+``published_label`` (why they are not comparable), and ends with the **orderings** of the listed
+methods per block and column (:func:`orderings`, columns matching ``order_columns``): the one
+comparison that carries over between two datasets. A listed method without rows on an evaluated
+dataset is named as **not evaluated**.
+
 Claims (``conf/report/default.yaml: claims``)
 ---------------------------------------------
 Each claim is data (the method, the columns, a test) and :func:`evaluate_claim` judges it from
@@ -33,7 +42,14 @@ outcome is written by hand. Tests: ``lowest`` (the method is below every baselin
 column), ``growth`` (its rise from column ``from`` to ``to`` is below every baseline's),
 ``below_references`` (below each named calibration row), ``column_less`` (column ``better`` below
 column ``worse`` for each method). Baselines are the block's other methods (ours: ``kind="model"``
-only), minus the claim's ``exclude`` patterns. A verdict is ``holds`` / ``does not hold`` with the
+only), minus the claim's ``exclude`` patterns, or the rows the claim names in ``baselines`` (those
+it lacks are named as not evaluated against). ``method`` may list several methods: each one the
+block holds is judged, and the block's verdict is the worst of theirs. ``table`` may list several
+tables; ``metrics`` restricts the blocks judged to those metrics, and ``columns`` to the blocks
+holding one of them (each block judged at those it holds). A claim on a table configured with
+``ours_from`` is judged on the gathered rows; ``paper_note`` says why the paper's side has no
+number (e.g. a claim the paper makes from qualitative results only). A verdict is ``holds`` /
+``does not hold`` with the
 deciding numbers, ``not evaluated`` when the block or a needed cell is missing (NaN included), and
 ``within noise`` where the deciding gap is smaller than twice the larger standard deviation of the two
 rows compared (over training seeds for models trained with several seeds, over evaluation seeds for
@@ -169,6 +185,7 @@ class Block:
     kind: dict[str, str] = field(default_factory=dict)
     condition: dict[str, str] = field(default_factory=dict)
     note: dict[str, str] = field(default_factory=dict)
+    source: str = ""                             # ours gathered from another table: "<paper> <table>"
 
     @property
     def label(self) -> str:
@@ -190,13 +207,25 @@ def _method_names(df: pd.DataFrame) -> pd.Series:
     return names
 
 
-def ours_blocks(ours: pd.DataFrame, paper: str, table: str | None) -> list[Block]:
-    sel = ours[(ours["paper"] == paper) & ((ours["table"] == table) if table else True)]
+def _as_list(x: Any) -> list[str]:
+    """``None`` -> ``[]``, a string -> ``[it]``, a sequence -> a list."""
+    return [] if x is None else [x] if isinstance(x, str) else list(x)
+
+
+def _select(df: pd.DataFrame, paper: str, table: str | Sequence[str] | None) -> pd.DataFrame:
+    """The rows of ``paper`` and of ``table`` (one, several, or every table when ``None``)."""
+    tables = _as_list(table)
+    return df[(df["paper"] == paper) & (df["table"].isin(tables) if tables else True)]
+
+
+def ours_blocks(ours: pd.DataFrame, paper: str, table: str | Sequence[str] | None) -> list[Block]:
+    sel = _select(ours, paper, table)
     blocks = []
     group = ["table", *BLOCK]
     for key, df in sel.sort_values("order").groupby(group, sort=False):
         tbl, ds, comp, metric, proto = key
-        b = Block("ours", paper, tbl, comp, metric, dataset=ds, protocol=proto)
+        b = Block("ours", paper, tbl, comp, metric, dataset=ds, protocol=proto,
+                  source=str(df["source"].iloc[0]) if "source" in df.columns else "")
         df = df.assign(display=_method_names(df))
         b.columns = list(dict.fromkeys(df["column"]))
         for r in df.itertuples():
@@ -213,8 +242,8 @@ def ours_blocks(ours: pd.DataFrame, paper: str, table: str | None) -> list[Block
     return blocks
 
 
-def paper_blocks(pub: pd.DataFrame, paper: str, table: str | None) -> list[Block]:
-    sel = pub[(pub["paper"] == paper) & ((pub["table"] == table) if table else True)]
+def paper_blocks(pub: pd.DataFrame, paper: str, table: str | Sequence[str] | None) -> list[Block]:
+    sel = _select(pub, paper, table)
     blocks = []
     for (tbl, comp, metric), df in sel.sort_values("order").groupby(["table", "compare_to", "metric"], sort=False):
         b = Block("paper", paper, tbl, comp, metric)
@@ -229,6 +258,49 @@ def paper_blocks(pub: pd.DataFrame, paper: str, table: str | None) -> list[Block
             b.cells[r.method][r.column] = Cell(float(r.value))
         blocks.append(b)
     return blocks
+
+
+def gather(ours: pd.DataFrame, src: Mapping[str, Any], paper: str, table: str,
+           datasets: Sequence[str] | None = None) -> pd.DataFrame:
+    """Our rows for a table that no suite writes (``ours_from``: GlocalNet Table 2, GloGen's loss
+    ablation, whose published numbers are on a dataset we do not have): the rows of the tables
+    ``src["tables"]`` (``[paper, table]`` pairs) of the methods ``src["methods"]`` (our name -> the name
+    shown, as the paper writes it), plus the reference rows named in ``src["references"]``, on
+    ``datasets`` (all when ``None``), re-labelled as rows of ``(paper, table)``; ``source`` names the
+    table each came from. No number is changed."""
+    names = dict(src.get("methods") or {})
+    refs = set(src.get("references") or [])
+    parts = []
+    for p, t in src.get("tables") or []:
+        sel = ours[(ours["paper"] == p) & (ours["table"] == t)]
+        if datasets:
+            sel = sel[sel["dataset"].isin(list(datasets))]
+        keep = sel["method"].isin(list(names)) | ((sel["kind"] == "reference") & sel["method"].isin(refs))
+        parts.append(sel[keep].assign(source=f"{p} {t}"))
+    out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=[*ours.columns, "source"])
+    if out.empty:
+        return pd.DataFrame(columns=[*ours.columns, "source"])
+    return out.assign(method=out["method"].map(lambda m: names.get(m, m)), paper=paper, table=table)
+
+
+def orderings(blocks: Sequence[Block], names: Sequence[str], patterns: Sequence[str] | None,
+              digits: int = 3) -> str:
+    """For each block and column (those matching one of ``patterns``; all when none), the methods
+    ``names`` that have a value there, in ascending order of it: what stays comparable where the
+    absolute values are not (ours beside a paper's numbers on another dataset)."""
+    rows = []
+    for b in blocks:
+        for col in b.columns:
+            if patterns and not any(re.fullmatch(p, col) for p in patterns):
+                continue
+            vals = {m: b.cells[m][col] for m in names
+                    if col in b.cells.get(m, {}) and np.isfinite(b.cells[m][col].value)}
+            if len(vals) < 2:
+                continue
+            order = sorted(vals, key=lambda m: vals[m].value)
+            rows.append([b.label + (f" ({b.metric})" if b.side == "ours" else ""), col,
+                         " < ".join(f"{m} {cell(vals[m].value, vals[m].std, digits)}" for m in order)])
+    return md_table(["block", "column", "ascending (mean ± std over seeds where random)"], rows) if rows else ""
 
 
 def match(block: Block, pub_blocks: list[Block]) -> Block | None:
@@ -298,17 +370,30 @@ def render_table(spec: Mapping[str, Any], ours: pd.DataFrame, pub: pd.DataFrame,
                  digits: int = 3) -> tuple[str, dict[str, Any]]:
     """Markdown of one configured table (title, intro, status, blocks) and a summary of what it holds."""
     paper, table = spec["paper"], spec.get("table")
+    datasets = list(spec.get("datasets") or [])
+    src = spec.get("ours_from")
+    if src:                                       # ours come from other tables' rows (:func:`gather`)
+        ours = gather(ours, src, paper, table, datasets)
     ob, pb = ours_blocks(ours, paper, table), paper_blocks(pub, paper, table)
     parts = [f"### {spec['title']}", str(spec.get("intro", "")).strip()]
-    datasets = list(spec.get("datasets") or [])
     missing = [ds for ds in datasets if status.get(ds, "not evaluated").startswith("not evaluated")]
     for ds in missing:
         parts.append(f"**{ds}: {status.get(ds, 'not evaluated (not in the evaluate list)')}.** "
                      f"{'Only the published numbers are shown.' if pb else ''}")
+    wanted = list(dict.fromkeys((src.get("methods") or {}).values())) if src else []
     for ds in datasets:
-        if ds not in missing and not any(b.dataset == ds for b in ob):
-            parts.append(f"**{ds}: evaluated, but its results hold no rows for {paper} {table or ''}** "
-                         f"(is the suite in `conf/dataset/{ds}.yaml: evaluate.suites`?).")
+        if ds in missing:
+            continue
+        if not any(b.dataset == ds for b in ob):
+            where = ", ".join(" ".join(t) for t in (src or {}).get("tables") or [])
+            why = (f"(none of {', '.join(wanted)} in {where}: trained and evaluated?)." if src
+                   else f"(is the suite in `conf/dataset/{ds}.yaml: evaluate.suites`?).")
+            parts.append(f"**{ds}: evaluated, but its results hold no rows for {paper} {table or ''}** {why}")
+            continue
+        absent = [m for m in wanted if not any(b.dataset == ds and m in b.cells for b in ob)]
+        if absent:
+            parts.append(f"**{ds}: {', '.join(absent)} not evaluated** (no rows: the run is not trained, or "
+                         f"`evaluate@{ds}` has not run since).")
     used = set()
     for b in ob:
         p = match(b, pb)
@@ -316,13 +401,23 @@ def render_table(spec: Mapping[str, Any], ours: pd.DataFrame, pub: pd.DataFrame,
             used.add(id(p))
         head = f"**{b.dataset}**" + (f" — compared with *{b.compare_to}*" if b.compare_to else "") + \
                f" — {b.metric}" + (f" — protocol: {b.protocol}" if b.protocol else "")
-        if p is None and pb:
+        if b.source:
+            head += f" — our rows of {b.source}"
+        elif p is None and pb:
             head += " (no published counterpart)"
         parts += [head, render_block(b, p, digits)]
     for p in pb:
         if id(p) not in used:
-            parts += [f"**published only** — *{p.compare_to}* — {p.metric} (no counterpart in our data)",
+            parts += [f"**published** — *{p.compare_to}* — {p.metric}: {spec['published_label']}"
+                      if spec.get("published_label") else
+                      f"**published only** — *{p.compare_to}* — {p.metric} (no counterpart in our data)",
                       render_block(None, p, digits)]
+    if src and (ob or pb):
+        order = orderings([*ob, *pb], wanted, spec.get("order_columns"), digits)
+        if order:
+            parts += ["**Orderings** — the one comparison that carries over between our data and the paper's: "
+                      "the variants in ascending order of each column (lower is better for every distance here: "
+                      "MMD, Euclidean distance, FID, jitter).", order]
     summary = {"blocks": len(ob), "published_blocks": len(pb), "rows": int(sum(len(b.methods) for b in ob)),
                "missing": missing}
     return "\n\n".join(x for x in parts if x), summary
@@ -358,8 +453,36 @@ def _excluded(name: str, patterns: Sequence[str]) -> bool:
     return any(re.search(p, name) for p in patterns)
 
 
-def _baselines(block: Block, method: str, exclude: Sequence[str]) -> list[str]:
-    return [m for m in block.methods if m != method and block.kind.get(m) != "reference" and not _excluded(m, exclude)]
+def _methods(claim: Mapping[str, Any]) -> list[str]:
+    """The claim's ``method``: one name or a list of names (each judged)."""
+    return _as_list(claim.get("method"))
+
+
+def _baselines(block: Block, method: str, exclude: Sequence[str], claim: Mapping[str, Any] | None = None) -> list[str]:
+    """The rows ``method`` is compared with: the claim's ``baselines`` where it names them (those the block
+    holds), else every other model row of the block but the claim's other methods and ``exclude``."""
+    claim = claim or {}
+    if claim.get("baselines") is not None:
+        return [m for m in claim["baselines"] if m in block.cells and block.kind.get(m) != "reference"]
+    others = set(_methods(claim)) | {method}
+    return [m for m in block.methods if m not in others and block.kind.get(m) != "reference"
+            and not _excluded(m, exclude)]
+
+
+def _columns(block: Block, claim: Mapping[str, Any]) -> list[str]:
+    """The columns a claim is judged at in ``block``: its ``columns`` that the block has (every column of
+    the block when it names none)."""
+    return [c for c in claim["columns"] if c in block.columns] if claim.get("columns") else list(block.columns)
+
+
+def _applies(block: Block, claim: Mapping[str, Any]) -> bool:
+    """Whether a block is one the claim is about: one of its methods there, its ``metrics`` (when it names
+    some) and at least one of its ``columns`` (when it names some)."""
+    if claim["test"] != "column_less" and not any(m in block.cells for m in _methods(claim)):
+        return False
+    if claim.get("metrics") and block.metric not in claim["metrics"]:
+        return False
+    return not (claim.get("columns") and claim["test"] in ("lowest", "below_references") and not _columns(block, claim))
 
 
 def _spread(block: Block, method: str, column: str) -> float:
@@ -386,12 +509,36 @@ def _verdict(fails: list[str], parts: list[str], skipped: list[str], method: str
 
 
 def _judge(block: Block, claim: Mapping[str, Any], refs: Block | None = None,
-           candidate: float | None = None) -> tuple[str, str]:
-    """One claim on one block: ``(verdict, detail with the numbers)``."""
+           candidate: float | None = None, expected: set[str] | None = None) -> tuple[str, str]:
+    """One claim on one block: ``(verdict, detail with the numbers)``. A claim naming several methods is
+    judged for each the block holds (:func:`_judge_one`): it does not hold if it fails for one, it is
+    within noise if it holds for none outright, it holds if it holds for all; the methods the block
+    lacks are named (not evaluated), those of ``expected`` only where given (the methods that some
+    block of the block's table holds: a method another table names is not missing here)."""
+    names = _methods(claim)
+    if claim["test"] == "column_less" or len(names) <= 1:
+        return _judge_one(block, claim, refs, candidate)
+    results, absent = [], []
+    for m in names:
+        if m in block.cells:
+            results.append((m, *_judge_one(block, {**claim, "method": m}, refs, candidate)))
+        elif expected is None or m in expected:
+            absent.append(m)
+    judged = [v for _, v, _ in results if v != NA]
+    verdict = NA if not judged else FAILS if FAILS in judged else NOISE if NOISE in judged else HOLDS
+    detail = "; ".join(f"{m}: {d}" for m, _, d in results)
+    if absent:
+        detail += f"; not evaluated for {', '.join(absent)} (no row)"
+    return verdict, detail
+
+
+def _judge_one(block: Block, claim: Mapping[str, Any], refs: Block | None = None,
+               candidate: float | None = None) -> tuple[str, str]:
+    """One claim on one block for one method: ``(verdict, detail with the numbers)``."""
     test = claim["test"]
     method = claim.get("method")
     exclude = list(claim.get("exclude") or [])
-    columns = list(claim.get("columns") or block.columns)
+    columns = _columns(block, claim)
 
     if test == "column_less":
         better, worse = claim["better"], claim["worse"]
@@ -412,10 +559,14 @@ def _judge(block: Block, claim: Mapping[str, Any], refs: Block | None = None,
     def val(col: str) -> float:
         return candidate if candidate is not None else block.value(method, col)
 
+    named = list(claim.get("baselines") or [])
+    gone = [m for m in named if m not in block.cells]
+    lacking = f"; not evaluated against {', '.join(gone)} (no row)" if gone else ""
+
     if test == "lowest":
-        base = _baselines(block, method, exclude)
+        base = _baselines(block, method, exclude, claim)
         if not base:
-            return NA, "no baseline rows"
+            return NA, (f"none of the baselines {', '.join(named)} has a row" if named else "no baseline rows")
         fails, parts, skipped, noisy = [], [], [], []
         for col in columns:
             v = val(col)
@@ -432,11 +583,12 @@ def _judge(block: Block, claim: Mapping[str, Any], refs: Block | None = None,
                 noisy.append(col)
             elif not v < bv[best]:
                 fails.append(col)
-        return _verdict(fails, parts, skipped, method, noisy)
+        verdict, detail = _verdict(fails, parts, skipped, method, noisy)
+        return verdict, detail + lacking
 
     if test == "growth":
         a, b = claim["from"], claim["to"]
-        base = _baselines(block, method, exclude)
+        base = _baselines(block, method, exclude, claim)
         g = val(b) - val(a)
         gb = {m: block.value(m, b) - block.value(m, a) for m in base}
         gb = {m: x for m, x in gb.items() if np.isfinite(x)}
@@ -447,7 +599,7 @@ def _judge(block: Block, claim: Mapping[str, Any], refs: Block | None = None,
         def sd(m: str) -> float:                       # std of a rise: both ends' stds combined
             return float(np.hypot(_spread(block, m, a), _spread(block, m, b)))
 
-        detail = f"rise {a}→{b}: {method} {fmt(g)} vs least-rising baseline {least} {fmt(gb[least])}"
+        detail = f"rise {a}→{b}: {method} {fmt(g)} vs least-rising baseline {least} {fmt(gb[least])}{lacking}"
         if candidate is None and _noise(gb[least] - g, sd(method), sd(least)):
             return NOISE, detail + " (within noise: less than twice the larger std)"
         return (HOLDS if g < gb[least] else FAILS), detail
@@ -474,16 +626,30 @@ def _judge(block: Block, claim: Mapping[str, Any], refs: Block | None = None,
     raise ValueError(f"claim {claim.get('id')}: unknown test {test!r} (lowest, growth, below_references, column_less)")
 
 
-def evaluate_claim(claim: Mapping[str, Any], ours: pd.DataFrame, pub: pd.DataFrame) -> ClaimResult:
-    """Judge ``claim`` on every block of its table, ours and published (module docstring)."""
+def evaluate_claim(claim: Mapping[str, Any], ours: pd.DataFrame, pub: pd.DataFrame,
+                   spec: Mapping[str, Any] | None = None) -> ClaimResult:
+    """Judge ``claim`` on every block of its table(s), ours and published (module docstring). ``spec``: the
+    configured table of the claim's ``(paper, table)``; where it gathers our rows from other tables
+    (``ours_from``, :func:`gather`), the claim is judged on those."""
+    src = claim.get("ours_from") or (spec or {}).get("ours_from")
+    if src:
+        ours = gather(ours, src, claim["paper"], claim["table"], (spec or {}).get("datasets"))
     ob = ours_blocks(ours, claim["paper"], claim.get("table"))
     pb = paper_blocks(pub, claim["paper"], claim.get("table"))
+    several = len(_as_list(claim.get("table"))) > 1
+    held: dict[str, set[str]] = {}                # per table: the methods some block of it holds
+    for b in [*ob, *pb]:
+        held.setdefault(b.table, set()).update(b.cells)
+
+    def where(b: Block) -> str:                   # the block's label, with its table where the claim spans several
+        return f"{b.table}, {b.label}" if several else b.label
+
     out = []
     for b in ob:
-        if claim["test"] != "column_less" and claim.get("method") not in b.cells:
+        if not _applies(b, claim):
             continue
-        v, d = _judge(b, claim)
-        out.append(Outcome(b.label, "ours", v, d))
+        v, d = _judge(b, claim, expected=held.get(b.table))
+        out.append(Outcome(where(b), "ours", v, d))
     for p in pb:
         if claim["test"] == "below_references":
             proto = claim.get("paper_protocol")
@@ -502,10 +668,10 @@ def evaluate_claim(claim: Mapping[str, Any], ours: pd.DataFrame, pub: pd.DataFra
                     out.append(Outcome(f"paper's {claim['method']} vs our calibration rows ({b.dataset}, {b.protocol})",
                                        "paper", v, "; ".join(parts)))
             continue
-        if claim["test"] != "column_less" and claim.get("method") not in p.cells:
+        if not _applies(p, claim):
             continue
-        v, d = _judge(p, claim)
-        out.append(Outcome(p.label, "paper", v, d))
+        v, d = _judge(p, claim, expected=held.get(p.table))
+        out.append(Outcome(where(p), "paper", v, d))
     return ClaimResult(claim, out)
 
 
@@ -521,10 +687,13 @@ def render_claims(results: Sequence[ClaimResult], why_missing: Mapping[str, str]
         for side in ("ours", "paper"):
             if not any(o.side == side for o in r.outcomes):
                 why = (why_missing or {}).get(r.claim.get("id"), "") if side == "ours" else (
-                    "the published value is set beside our calibration rows, and there are none"
-                    if r.claim["test"] == "below_references" else "")
-                lines.append(f"  - {side}: **{NA}** — " + (why or f"no {r.claim['paper']} {r.claim.get('table') or ''} "
-                                                              f"block holds {r.claim.get('method') or 'the methods'}"))
+                    r.claim.get("paper_note") or ("the published value is set beside our calibration rows, and there "
+                                                  "are none" if r.claim["test"] == "below_references" else ""))
+                at = f" at {', '.join(r.claim['columns'])}" if r.claim.get("columns") else ""
+                lines.append(f"  - {side}: **{NA}** — " + (why or f"no {r.claim['paper']} "
+                                                              f"{', '.join(_as_list(r.claim.get('table')))} block "
+                                                              f"holds {' or '.join(_methods(r.claim)) or 'the methods'}"
+                                                              f"{at}"))
         parts.append("\n".join(lines))
     return "\n\n".join(parts)
 
@@ -685,16 +854,17 @@ def write_report(reports: Path, datasets: Sequence[str], published: Path, opts: 
         path.write_text(md.replace("### ", "# ", 1) + "\n")
         files.append(path)
         table_md.append((spec, md))
-    claims = [evaluate_claim(c, ours, pub) for c in opts.get("claims") or []]
-    why = {}
+    specs = list(opts.get("tables") or [])
+    claims, why = [], {}
     for c in opts.get("claims") or []:
-        spec = next((t for t in opts.get("tables") or [] if (t["paper"], t.get("table")) == (c["paper"], c.get("table"))),
-                    None)
-        if spec:
-            gone = [f"{ds} {status.get(ds, 'not evaluated')}" for ds in spec.get("datasets") or []
-                    if status.get(ds, "not evaluated").startswith("not evaluated")]
-            if gone:
-                why[c["id"]] = "; ".join(gone)
+        tables = _as_list(c.get("table"))
+        mine = [t for t in specs if t["paper"] == c["paper"] and (t.get("table") in tables if tables
+                                                                  else t.get("table") is None)]
+        claims.append(evaluate_claim(c, ours, pub, mine[0] if len(mine) == 1 else None))
+        gone = [f"{ds} {status.get(ds, 'not evaluated')}" for t in mine for ds in t.get("datasets") or []
+                if status.get(ds, "not evaluated").startswith("not evaluated")]
+        if gone:
+            why[c["id"]] = "; ".join(dict.fromkeys(gone))
     kinds = {(r.dataset, r.method): r.kind for r in ours.itertuples()}
     fig_dir = reports / "figures" / "eval"
     if fig_dir.exists():

@@ -289,6 +289,7 @@ def train_classifier(train_x: Any, train_y: Any, val_x: Any, val_y: Any, num_cla
                      batch_size: int = 64, lr: float = 1e-3, seed: int = 0, threads: int | None = 1,
                      hidden_size: int = 128, num_layers: int = 2, feature_size: int = 30, clip: float = 1.0,
                      max_batches_per_epoch: int | None = None, select: str = "val_acc", device: str = "cpu",
+                     patience: int | None = None,
                      on_epoch: Callable[[dict, ActionClassifier], None] | None = None,
                      progress: bool = False) -> tuple[ActionClassifier, list[dict]]:
     """Train an :class:`ActionClassifier` on ``train_x`` ``[N, T, F]`` float32 with labels
@@ -301,7 +302,9 @@ def train_classifier(train_x: Any, train_y: Any, val_x: Any, val_y: Any, num_cla
     highest val accuracy (ties: the lower val loss), ``"val_loss"`` the lowest val loss,
     ``"last"`` the last epoch (also what any choice gives without val data). They must come
     from the validation split, never the test split, which is reserved for :func:`accuracy`
-    afterwards. ``threads`` sets ``torch.set_num_threads`` for the call (restored after;
+    afterwards. ``patience`` (``None``: off) stops training once that many epochs in a row have not
+    improved the selection key (with val data and ``select`` other than ``"last"``): the epochs after
+    the selected one change nothing that is returned. ``threads`` sets ``torch.set_num_threads`` for the call (restored after;
     ``None`` leaves it). ``on_epoch(row, model)`` is called after each epoch (logging; it
     must not change the model). Returns ``(model in eval mode, history)``, history one dict
     per epoch: ``epoch, train_loss, train_acc`` (running, over the epoch's batches),
@@ -315,6 +318,8 @@ def train_classifier(train_x: Any, train_y: Any, val_x: Any, val_y: Any, num_cla
     batch_size = _check_count(batch_size, "batch_size")
     if max_batches_per_epoch is not None:
         max_batches_per_epoch = _check_count(max_batches_per_epoch, "max_batches_per_epoch")
+    if patience is not None:
+        patience = _check_count(patience, "patience")
     if not (np.isfinite(lr) and lr > 0):
         raise ValueError(f"lr must be a positive number; got {lr!r}")
     if clip is not None and not (np.isfinite(clip) and clip > 0):
@@ -376,6 +381,8 @@ def train_classifier(train_x: Any, train_y: Any, val_x: Any, val_y: Any, num_cla
             if progress:
                 print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()),
                       flush=True)
+            if patience is not None and has_val and select != "last" and epoch - best_epoch >= patience:
+                break                                         # the selected weights can no longer change
         model.load_state_dict(best_state)
         history[best_epoch]["selected"] = True
     finally:

@@ -39,30 +39,26 @@ import torch
 from torch import Tensor, nn
 
 from .base import DataSpec
-from .recurrent import MODULE_RUN, check_int
+from .recurrent import MODULE_RUN, check_int, mask_seed_length
 from .seq2seq import Seq2Seq
-
-
-def seed_length(mask: Tensor | None, model: str) -> int:
-    """The length ``S`` of Seq2Seq's mask ``[N]`` (``S`` ground-truth seed steps, then self-fed ones),
-    refusing the masks the encoder-decoder variants cannot run (teacher forcing, per-sample coins)."""
-    if mask is None or mask.dim() != 1:
-        raise ValueError(f"{model} needs a seed-then-self-fed mask over the input steps (the sampling-based "
-                         "loss); teacher forcing and per-sample masks are not supported")
-    S = int(mask.sum())
-    if S < 1 or not bool(mask[:S].all()):
-        raise ValueError(f"{model}: the mask must be a ground-truth seed followed by self-fed steps")
-    return S
 
 
 class AttSeq2Seq(Seq2Seq):
 
-    def __init__(self, spec: DataSpec, hidden_size: int = 1024, num_layers: int = 1, attention_size: int = 128,
-                 **kwargs):
-        check_int("attention_size", attention_size)
-        if kwargs.get("scheduled_sampling"):
+    @classmethod
+    def check_hparams(cls, hparams: dict) -> None:
+        """The names (:meth:`MotionModel.check_hparams`), ``attention_size`` >= 1, and no scheduled
+        sampling; :func:`motionsynth.training.run.build` calls this before any data is read."""
+        super().check_hparams(hparams)
+        if "attention_size" in hparams:
+            check_int("attention_size", hparams["attention_size"])
+        if hparams.get("scheduled_sampling"):
             raise ValueError("att_seq2seq: scheduled_sampling must be false (the decoder attends over a "
                              "ground-truth encoder: only the sampling-based loss is supported)")
+
+    def __init__(self, spec: DataSpec, hidden_size: int = 1024, num_layers: int = 1, attention_size: int = 128,
+                 **kwargs):
+        self.check_hparams({"attention_size": attention_size, **kwargs})
         super().__init__(spec, hidden_size, num_layers, **kwargs)
         self.attention_size = attention_size
         self.att_query = nn.Linear(hidden_size, attention_size, bias=False)
@@ -83,7 +79,7 @@ class AttSeq2Seq(Seq2Seq):
         """As :meth:`RecurrentBaseline._rollout` for Seq2Seq's mask (a ground-truth seed, then
         self-fed steps), with every output attending over the seed's encoder states."""
         B, N, _ = inp.shape
-        S = seed_length(mask, "att_seq2seq")
+        S = mask_seed_length(mask, "att_seq2seq")
         grad = torch.is_grad_enabled()
         x = inp[:, :S] if cond is None else torch.cat([inp[:, :S], cond[:, :S]], -1)
         step = self.core.stepper() if (S < N or (grad and S < MODULE_RUN)) else None

@@ -76,6 +76,27 @@ class MotionModel(nn.Module):
         super().__init__()
         self.spec = spec
 
+    @classmethod
+    def check_hparams(cls, hparams: dict) -> None:
+        """Refuse, before any data is read, hyperparameters the constructor cannot take: names it does
+        not accept (``ValueError`` naming them). Models with values to check extend this (the
+        constructor checks again, for direct use)."""
+        import inspect
+
+        accepted, open_ended = set(), False
+        for klass in cls.__mro__:
+            if klass is MotionModel or "__init__" not in vars(klass):
+                continue
+            params = inspect.signature(vars(klass)["__init__"]).parameters
+            accepted |= {n for n, p in params.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)} - {"self", "spec"}
+            if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+                break                           # no **kwargs: the base classes take nothing more from here
+        else:
+            open_ended = True
+        unknown = sorted(set(hparams) - accepted)
+        if unknown and not open_ended:
+            raise ValueError(f"{cls.__name__} takes no hyperparameter(s) {unknown}; it takes {sorted(accepted)}")
+
     def loss(self, batch: Batch) -> tuple[Tensor, dict[str, float]]:
         raise NotImplementedError
 

@@ -74,9 +74,30 @@ Choices where the paper is vague (and why)
   copies are identical.
 * **Optimiser** (section 4.2): AdamW, lr 0.002, dropout 0.25; weight decay 0.01 (AdamW's
   default; the paper names none); batch size 64 (NTU-3D / CMU).
+
+Speed (CPU training)
+--------------------
+A training step is almost all bi-LSTM (eqs. 1-2): profiled at the H3.6M setting (``t_in`` 10,
+``t_out`` 50, ``pair_stride`` 5: 9 chunk pairs a window, hidden 200), the four LSTM directions'
+forward and backward take ~85 % of a step, dropout's masks ~6 %, the losses (eqs. 5-8, the
+motion-flow pairs included) and the optimiser under 2 %: nothing in the loss is slow. PyTorch runs
+a CPU LSTM that needs gradients on oneDNN (``mkldnn_rnn_layer``) by default. On one thread its
+native kernel (a batched matmul per step, autograd through the cell) computes the same function
+faster at these sizes (``[B * P, t]`` sequences of 10 steps, 100 units a direction): a step 16-19 %
+shorter (paired, interleaved steps, batch 64 and 100), mostly in the backward. With more threads
+the native kernel opens a parallel region per operation and time step (oneDNN: one per layer);
+measured with a busy process on the second core it was 10-70 % slower, so there PyTorch's default
+is kept. :class:`BiSeq2Seq` therefore runs its LSTMs on the native kernel while gradients are
+recorded on the CPU by a single-threaded process (:func:`native_cpu_rnn`: tests, parallel jobs,
+``train.threads=1``); inference, several threads and GPUs keep the default. Same maths: loss and
+gradients agree with the default kernel's to float rounding (``tests/test_model_glocal.py`` pins
+both against a plain reference computation).
 """
 
 from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Iterator
 
 import torch
 import torch.nn.functional as F
@@ -114,6 +135,27 @@ def check_seq2seq_hparams(hidden: int, dropout: float, lambda_joint: float, lamb
         raise ValueError("lambda_joint + lambda_flow must be > 0 (nothing to learn otherwise)")
 
 
+#: the torch thread count up to which training runs the LSTMs on the native kernel (module docstring, "Speed")
+NATIVE_RNN_MAX_THREADS = 1
+
+
+@contextmanager
+def native_cpu_rnn(x: Tensor) -> Iterator[None]:
+    """Run the LSTMs inside on PyTorch's native CPU kernel instead of oneDNN while gradients are recorded
+    for a CPU tensor ``x`` on a single thread (module docstring, "Speed": the same function, faster to
+    train there); elsewhere (no gradients, several threads, GPUs, oneDNN already off) nothing changes.
+    The global oneDNN switch is restored on leaving, also after an error."""
+    if (x.device.type != "cpu" or not torch.is_grad_enabled() or not torch.backends.mkldnn.enabled
+            or torch.get_num_threads() > NATIVE_RNN_MAX_THREADS):
+        yield
+        return
+    torch.backends.mkldnn.enabled = False
+    try:
+        yield
+    finally:
+        torch.backends.mkldnn.enabled = True
+
+
 class BiSeq2Seq(nn.Module):
     """The GloGen / LocGen network: bi-LSTM encoder -> bi-LSTM decoder fed with ALL encoder states.
 
@@ -132,8 +174,9 @@ class BiSeq2Seq(nn.Module):
         nn.init.zeros_(self.out.bias)
 
     def forward(self, x: Tensor) -> Tensor:
-        states, (h, c) = self.encoder(x)                        # eq. 1: H_1..H_L  [N, L, hidden]
-        y, _ = self.decoder(self.drop(states), (h, c))          # eq. 2: all states in, one per step
+        with native_cpu_rnn(x):                                 # the same LSTMs, faster to train on a CPU
+            states, (h, c) = self.encoder(x)                    # eq. 1: H_1..H_L  [N, L, hidden]
+            y, _ = self.decoder(self.drop(states), (h, c))      # eq. 2: all states in, one per step
         return self.out(self.drop(y))                           # [N, L, out_features]
 
 

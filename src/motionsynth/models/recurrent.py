@@ -702,3 +702,27 @@ class RecurrentBaseline(MotionModel):
         T = batch.pose.shape[1]
         S = min(self.seed_frames, T)
         return self.generate(batch.pose[:, :S], batch.controls, batch.labels, length=T)
+
+
+def generate_samples(model, seed: Tensor | None, controls: Tensor | None, labels: Tensor | None, length: int,
+                     num_samples: int) -> Tensor:
+    """``num_samples`` independent roll-outs per input of a stochastic model with a ``rollout`` (each
+    input repeated, then rolled out once): ``[B*num_samples, length, J, D]``, the samples of input
+    ``b`` at rows ``b*num_samples ...``."""
+    check_int("num_samples", num_samples)
+    if num_samples > 1:
+        rep = lambda t: None if t is None else t.repeat_interleave(num_samples, 0)  # noqa: E731
+        seed, controls, labels = rep(seed), rep(controls), rep(labels)
+    return model.rollout(seed, controls, labels, length)[0]
+
+
+def mask_seed_length(mask: Tensor | None, model: str) -> int:
+    """The length ``S`` of Seq2Seq's mask ``[N]`` (``S`` ground-truth seed steps, then self-fed ones),
+    refusing the masks the encoder-decoder variants cannot run (teacher forcing, per-sample coins)."""
+    if mask is None or mask.dim() != 1:
+        raise ValueError(f"{model} needs a seed-then-self-fed mask over the input steps (the sampling-based "
+                         "loss); teacher forcing and per-sample masks are not supported")
+    S = int(mask.sum())
+    if S < 1 or not bool(mask[:S].all()):
+        raise ValueError(f"{model}: the mask must be a ground-truth seed followed by self-fed steps")
+    return S

@@ -40,9 +40,7 @@ import torch
 from torch import Tensor, nn
 
 from .base import Batch, DataSpec
-from .att_seq2seq import seed_length
-from .crbm import generate_samples
-from .recurrent import check_int
+from .recurrent import check_int, generate_samples, mask_seed_length
 from .seq2seq import Seq2Seq
 
 SAMPLE_FROM = ("posterior", "prior")
@@ -50,17 +48,27 @@ SAMPLE_FROM = ("posterior", "prior")
 
 class VAESeq2Seq(Seq2Seq):
 
-    def __init__(self, spec: DataSpec, hidden_size: int = 1024, num_layers: int = 1, latent_size: int = 64,
-                 beta: float = 1.0, kl_warmup: float = 0.0, sample_from: str = "posterior", **kwargs):
-        check_int("latent_size", latent_size)
+    @classmethod
+    def check_hparams(cls, hparams: dict) -> None:
+        """The names (:meth:`MotionModel.check_hparams`) and the latent's values; called by
+        :func:`motionsynth.training.run.build` before any data is read."""
+        super().check_hparams(hparams)
+        if "latent_size" in hparams:
+            check_int("latent_size", hparams["latent_size"])
+        beta, warm = hparams.get("beta", 1.0), hparams.get("kl_warmup", 0.0)
         if isinstance(beta, bool) or not isinstance(beta, (int, float)) or not (math.isfinite(beta) and beta >= 0):
             raise ValueError(f"vae_seq2seq: beta must be a number >= 0, got {beta!r}")
-        if isinstance(kl_warmup, bool) or not isinstance(kl_warmup, (int, float)) or not 0 <= kl_warmup < 1:
-            raise ValueError(f"vae_seq2seq: kl_warmup must be a share of the budget in [0, 1), got {kl_warmup!r}")
-        if sample_from not in SAMPLE_FROM:
-            raise ValueError(f"vae_seq2seq: sample_from must be one of {SAMPLE_FROM}, got {sample_from!r}")
-        if kwargs.get("scheduled_sampling"):
+        if isinstance(warm, bool) or not isinstance(warm, (int, float)) or not 0 <= warm < 1:
+            raise ValueError(f"vae_seq2seq: kl_warmup must be a share of the budget in [0, 1), got {warm!r}")
+        if hparams.get("sample_from", "posterior") not in SAMPLE_FROM:
+            raise ValueError(f"vae_seq2seq: sample_from must be one of {SAMPLE_FROM}, got {hparams['sample_from']!r}")
+        if hparams.get("scheduled_sampling"):
             raise ValueError("vae_seq2seq: scheduled_sampling must be false (only the sampling-based loss)")
+
+    def __init__(self, spec: DataSpec, hidden_size: int = 1024, num_layers: int = 1, latent_size: int = 64,
+                 beta: float = 1.0, kl_warmup: float = 0.0, sample_from: str = "posterior", **kwargs):
+        self.check_hparams({"latent_size": latent_size, "beta": beta, "kl_warmup": kl_warmup,
+                            "sample_from": sample_from, **kwargs})
         super().__init__(spec, hidden_size, num_layers, **kwargs)
         self.latent_size, self.beta, self.kl_warmup, self.sample_from = latent_size, float(beta), float(kl_warmup), sample_from
         n = hidden_size * num_layers
@@ -90,7 +98,7 @@ class VAESeq2Seq(Seq2Seq):
         """Encoder over the ground-truth seed (one GRU call), then the decoder from ``z`` over the
         self-fed steps. The seed's own outputs (frames ``1..S-1``) come from the encoder states."""
         B, N, _ = inp.shape
-        S = seed_length(mask, "vae_seq2seq")
+        S = mask_seed_length(mask, "vae_seq2seq")
         x = inp[:, :S] if cond is None else torch.cat([inp[:, :S], cond[:, :S]], -1)
         enc, state = self.core.sequence(self.encoder(x[:, :S - 1]), None) if S > 1 else (None, None)
         if state is None:

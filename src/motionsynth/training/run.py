@@ -65,6 +65,20 @@ def train_config(cfg: dict[str, Any]) -> TrainConfig:
     return TrainConfig(**merged).validate()
 
 
+def hparams(cfg: dict[str, Any]) -> dict[str, Any]:
+    """The model's constructor arguments, later entries winning: ``model.sizes.<model_size>``, the
+    dataset's protocol-level ``training.model_overrides`` (H3.6M Table 3: 10 input + 50 predicted
+    poses) for the model's ``overrides_as`` (a config variant of another model, e.g. GloGen's loss
+    ablation, takes that model's protocol) and then for its own name, and a protocol variant's
+    ``model_args`` (conf/variant/, e.g. VAE-LSTM Table 2's given controls)."""
+    m, ds = cfg["model"], cfg["dataset"]
+    overrides = (ds["training"].get("model_overrides") or {})
+    names = [n for n in (m.get("overrides_as"), m["name"]) if n]
+    return {**(m.get("sizes") or {}).get(cfg.get("model_size", "default"), {}),
+            **{k: v for n in names for k, v in (overrides.get(n) or {}).items()},
+            **(cfg.get("model_args") or {})}
+
+
 def build(cfg: dict[str, Any]):
     """Data, model and trainer config from a resolved config dict (no training yet)."""
     ds, m = cfg["dataset"], cfg["model"]
@@ -72,17 +86,18 @@ def build(cfg: dict[str, Any]):
     if size not in m.get("sizes", {}):
         raise ValueError(f"model {m.get('name')!r} has no sizes.{size}; has {sorted(m.get('sizes', {}))}")
     cls = model_class(m["_target_"])
+    args = hparams(cfg)
+    try:                                  # a config the model cannot use fails here, before any data is read
+        cls.check_hparams(args)
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"model {m.get('name')!r} (conf/model/{m.get('name')}.yaml, sizes.{size}): {e}") from None
     tcfg = train_config(cfg)
     family = getattr(cls, "family", None) or ds["training"]["family"]
     paths = cfg["paths"]
     train = open_split(paths["processed"], paths["splits"], ds["name"], ds["training"], family, "train")
     val = open_split(paths["processed"], paths["splits"], ds["name"], ds["training"], family, "val")
     seed_everything(tcfg.seed)
-    # a dataset may fix protocol-level hyperparameters (H3.6M Table 3: 10 input + 50 predicted poses)
-    # and a protocol variant (conf/variant/) its own arguments, e.g. VAE-LSTM Table 2's given controls
-    hparams = {**m["sizes"][size], **(ds["training"].get("model_overrides") or {}).get(m["name"], {}),
-               **(cfg.get("model_args") or {})}
-    model = cls(train.spec, **hparams)
+    model = cls(train.spec, **args)
     return model, train, val, tcfg
 
 
@@ -168,13 +183,15 @@ def run(cfg: dict[str, Any], progress: bool = True, job=None) -> dict[str, Any]:
 
         trainer.on_epoch = on_epoch
         result = trainer.fit()
-        best = _best_row(result["history"], tcfg.monitor)
+        trainable = trainer.optim is not None   # False: a reference (zero-velocity, the mean pose) learns nothing
+        best = _best_row(result["history"], tcfg.monitor) if trainable else {
+            k: v for k, v in _best_row(result["history"], tcfg.monitor).items() if k not in ("epoch", "step")}
         summary = {"model": m, "run": name, "variant": cfg.get("variant_name"), "dataset": ds,
                    "epochs_run": result["epochs_run"], "steps": int(result["history"][-1].get("step", 0)),
                    "budget_steps": result["total_steps"], "steps_per_pass": result["steps_per_pass"],
                    "seconds": result["seconds"], "best_epoch": best.get("epoch"), "best_step": best.get("step"),
-                   "monitor": tcfg.monitor,
-                   "converged": trainer_converged(result["history"], tcfg, trainable=trainer.optim is not None),
+                   "monitor": tcfg.monitor, "reference": not trainable,
+                   "converged": trainer_converged(result["history"], tcfg, trainable=trainable),
                    **{k: v for k, v in best.items() if k not in ("epoch", "step")},
                    "parameters": sum(p.numel() for p in model.parameters()),
                    "train_windows": len(train), "val_windows": len(val)}
@@ -211,11 +228,12 @@ def write_curve(path: Path, history: list[dict], monitor: str, run: str) -> Path
     return path
 
 
-def trainer_converged(history: list[dict], tcfg: TrainConfig, trainable: bool = True) -> bool:
-    """``converged`` of a run (:func:`~.criteria.converged` on its selection criterion); a model with
-    nothing to learn (zero-velocity, the mean pose) is converged by definition."""
+def trainer_converged(history: list[dict], tcfg: TrainConfig, trainable: bool = True) -> bool | None:
+    """``converged`` of a run (:func:`~.criteria.converged` on its selection criterion); ``None`` for a
+    reference with nothing to learn (zero-velocity, the mean pose: no optimiser step, so neither
+    converged nor not: its summary says ``reference: true`` and has no selected step)."""
     if not trainable:
-        return True
+        return None
     return converged(history, tcfg.monitor, tcfg.converged_tol, tcfg.converged_tail)
 
 
