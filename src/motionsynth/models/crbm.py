@@ -78,7 +78,7 @@ from torch import Tensor, nn
 
 from .base import Batch, DataSpec, MotionModel, one_thread
 from .recurrent import (CONTROL_MODES, check_family, check_int, default_seed_frames, generate_samples,
-                        rollout_output, seed_inputs)
+                        rollout_output, seed_inputs, train_crop)
 
 
 class CRBM(MotionModel):
@@ -195,15 +195,8 @@ class CRBM(MotionModel):
 
     def _windows(self, batch: Batch) -> tuple[Tensor, Tensor]:
         """Visible frames ``order..T-1`` and their conditioning, ``[B, T-N, Fy]`` and ``[B, T-N, cond_dim]``."""
-        pose, controls, labels = batch.pose, batch.controls, batch.labels
+        pose, controls, labels = train_crop(batch, self.train_window if self.training else None)
         T = pose.shape[1]
-        if self.training and self.train_window and self.train_window < T:
-            off = int(torch.randint(0, T - self.train_window + 1, ()))
-            sl = slice(off, off + self.train_window)
-            pose = pose[:, sl]
-            controls = controls[:, sl] if controls is not None else None
-            labels = labels[:, sl] if labels is not None and labels.dim() == 2 else labels
-            T = self.train_window
         if T <= self.order:
             raise ValueError(f"CRBM of order {self.order} needs windows of > {self.order} frames, got {T}")
         y = self._frames(pose, controls)

@@ -654,15 +654,7 @@ class RecurrentBaseline(MotionModel):
     def loss(self, batch: Batch) -> tuple[Tensor, dict[str, float]]:
         """The scheme's next-frame MSE; while training, on a random ``train_window``-frame crop of
         each batch's windows (one offset per batch) when ``train_window`` is set and shorter."""
-        pose, controls, labels = batch.pose, batch.controls, batch.labels
-        T = pose.shape[1]
-        if self.training and self.train_window and self.train_window < T:
-            off = int(torch.randint(0, T - self.train_window + 1, ()))
-            sl = slice(off, off + self.train_window)
-            pose = pose[:, sl]
-            controls = controls[:, sl] if controls is not None else None
-            labels = labels[:, sl] if labels is not None and labels.dim() == 2 else labels
-        return self._objective(pose, controls, labels)
+        return self._objective(*train_crop(batch, self.train_window if self.training else None))
 
     # ------------------------------------------------------------------ synthesis
     @torch.no_grad()
@@ -726,3 +718,18 @@ def mask_seed_length(mask: Tensor | None, model: str) -> int:
     if S < 1 or not bool(mask[:S].all()):
         raise ValueError(f"{model}: the mask must be a ground-truth seed followed by self-fed steps")
     return S
+
+
+def train_crop(batch: Batch, window: int | None) -> tuple[Tensor, Tensor | None, Tensor | None]:
+    """``(pose, controls, labels)`` of ``batch``, cropped to a random ``window``-frame span (one offset
+    per batch, drawn from torch's generator) when ``window`` is set and shorter than the windows: the
+    training crops of the next-frame models (``train_window``)."""
+    pose, controls, labels = batch.pose, batch.controls, batch.labels
+    T = pose.shape[1]
+    if window and window < T:
+        off = int(torch.randint(0, T - window + 1, ()))
+        sl = slice(off, off + window)
+        pose = pose[:, sl]
+        controls = controls[:, sl] if controls is not None else None
+        labels = labels[:, sl] if labels is not None and labels.dim() == 2 else labels
+    return pose, controls, labels
