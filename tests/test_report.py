@@ -138,6 +138,8 @@ def test_tables_set_our_values_beside_the_published_ones(tmp_path):
     t3 = (reports / "tables" / "glocalnet_table3.md").read_text()
     assert t3.count("protocol: test split (ours)") == 1 and t3.count("protocol: train split (reference code)") == 1
     assert "| method | source | condition | MMD_avg | MMD_seq | velocity MMD_avg | n × seeds |" in t3
+    # a published method we do not run says why on its ours line (conf/report: not_run)
+    assert lines_of(t3, "EPVA")[0].startswith("| **EPVA** | ours | not run: a video-prediction method")
     assert t3.count("|  | paper |  | 0.103 | 0.102 | — |") == 2
     # the README holds every table
     readme = (reports / "README.md").read_text()

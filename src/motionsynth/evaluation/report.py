@@ -310,8 +310,9 @@ def match(block: Block, pub_blocks: list[Block]) -> Block | None:
 
 # ============================================================================ tables
 
-def render_block(ours: Block | None, pub: Block | None, digits: int = 3) -> str:
-    """Markdown of one block: models (ours and paper lines), then our reference rows apart."""
+def render_block(ours: Block | None, pub: Block | None, digits: int = 3, not_run: Mapping[str, str] | None = None) -> str:
+    """Markdown of one block: models (ours and paper lines), then our reference rows apart. A published
+    method without our row says why where ``not_run`` (``conf/report: not_run``) names it."""
     columns = list(dict.fromkeys([*(pub.columns if pub else []), *(ours.columns if ours else [])]))
     header = ["method", "source", "condition", *columns, "n × seeds"]
     rows = []
@@ -326,7 +327,9 @@ def render_block(ours: Block | None, pub: Block | None, digits: int = 3) -> str:
                              *[cell(cs[c].value, cs[c].std, digits) if c in cs else DASH for c in columns],
                              "; ".join(_count(n, s) for n, s in sorted(ns, key=str))])
             else:
-                rows.append([f"**{m}**", "ours", DASH, *[DASH] * len(columns), ""])
+                why = (not_run or {}).get(m)
+                rows.append([f"**{m}**", "ours", f"not run: {' '.join(str(why).split())}" if why else DASH,
+                             *[DASH] * len(columns), ""])
         if pub is not None:
             first = ours is None
             if m in pub.cells:
@@ -367,7 +370,7 @@ def _count(n: float, seeds: float) -> str:
 
 
 def render_table(spec: Mapping[str, Any], ours: pd.DataFrame, pub: pd.DataFrame, status: Mapping[str, str],
-                 digits: int = 3) -> tuple[str, dict[str, Any]]:
+                 digits: int = 3, not_run: Mapping[str, str] | None = None) -> tuple[str, dict[str, Any]]:
     """Markdown of one configured table (title, intro, status, blocks) and a summary of what it holds."""
     paper, table = spec["paper"], spec.get("table")
     datasets = list(spec.get("datasets") or [])
@@ -405,7 +408,7 @@ def render_table(spec: Mapping[str, Any], ours: pd.DataFrame, pub: pd.DataFrame,
             head += f" — our rows of {b.source}"
         elif p is None and pb:
             head += " (no published counterpart)"
-        parts += [head, render_block(b, p, digits)]
+        parts += [head, render_block(b, p, digits, not_run)]
     for p in pb:
         if id(p) not in used:
             parts += [f"**published** — *{p.compare_to}* — {p.metric}: {spec['published_label']}"
@@ -849,7 +852,7 @@ def write_report(reports: Path, datasets: Sequence[str], published: Path, opts: 
     files: list[Path] = []
     table_md = []
     for spec in opts.get("tables") or []:
-        md, _ = render_table(spec, ours, pub, status, digits)
+        md, _ = render_table(spec, ours, pub, status, digits, opts.get("not_run"))
         path = tables_dir / f"{spec['id']}.md"
         path.write_text(md.replace("### ", "# ", 1) + "\n")
         files.append(path)
