@@ -18,7 +18,7 @@ from omegaconf import OmegaConf
 
 from motionsynth.training.data import real_batch
 from motionsynth.training.run import model_class, train_config
-from motionsynth.training.trainer import make_optimizer
+from motionsynth.training.trainer import make_optimizer, player_optimizers
 
 DATASET_FOR = {"vae_lstm": "bandai2_locomotion", "glocal": "h36m"}
 #: sequences/s of the acLSTM authors' code at the paper size on this machine (issue 3)
@@ -26,10 +26,22 @@ REFERENCE_ACLSTM = 6.2
 
 
 class Step:
+    """One optimiser step: ``model.loss`` and one optimiser, or an adversarial model's whole step (every
+    player's update, as the trainer runs it; ``optim`` is then the dict of the players' optimisers)."""
+
     def __init__(self, model, batch, optim):
         self.model, self.batch, self.optim = model, batch, optim
 
+    def update(self, player, loss):
+        opt = self.optim[player]
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+
     def __call__(self):
+        if getattr(self.model, "adversarial", False):
+            self.model.adversarial_step(self.batch, self.update)
+            return
         loss, _ = self.model.loss(self.batch)
         self.optim.zero_grad(set_to_none=True)
         loss.backward()
@@ -58,9 +70,13 @@ def bench_model(name: str, size: str, tmp: str, steps: int, threads: int, peaks:
     torch.manual_seed(0)
     over = (dataset_cfg(dataset)["training"].get("model_overrides") or {}).get(name, {})   # as training builds it
     model = cls(spec, **{**mcfg["sizes"][size], **over})
-    optim = make_optimizer(model, train_config({"model": mcfg, "train": {}, "seed": 0}))
+    tcfg = train_config({"model": mcfg, "train": {}, "seed": 0})
+    optim = player_optimizers(model, tcfg) if getattr(model, "adversarial", False) else make_optimizer(model, tcfg)
     if optim is None:
         return None
+    if hasattr(model, "pretrain_steps"):      # SkeletonGAN's family: time the sequence stage (its costly one)
+        model.set_progress(model.pretrain_steps, model.pretrain_steps + 1)
+    model.train()
     step = Step(model, batch, optim)
     dt = median_time(step, repeats=steps, warmup=2)
     flops = step_flops(step)

@@ -32,23 +32,27 @@ from motionsynth.data.types import USER_ERRORS  # noqa: E402
 log = logging.getLogger("motionsynth")
 #: exit code of a stage stopped by bad input, missing data or a config that does not fit its data
 USER_ERROR_EXIT = 2
+#: exit code of a training stage stopped on divergence (a non-finite loss, exploding GAN logits)
+DIVERGED_EXIT = 3
 
 
 def one_line_errors(main: Callable) -> Callable:
     """Wrap a stage's entry point (under ``@hydra.main``): bad input, missing data or a config that
     does not fit its data (:data:`motionsynth.data.types.USER_ERRORS`) print ONE line,
-    ``<stage>: <message>``, on stderr and exit with :data:`USER_ERROR_EXIT`. Anything else is a bug
-    and keeps its traceback; so does every error of a multirun job (the launcher records it)."""
+    ``<stage>: <message>``, on stderr and exit with :data:`USER_ERROR_EXIT`; so does a training run
+    stopped on divergence (``FloatingPointError``: the trainer's non-finite loss, exploding GAN logits;
+    exit :data:`DIVERGED_EXIT`; its checkpoints are those of the last good round). Anything else is a
+    bug and keeps its traceback; so does every error of a multirun job (the launcher records it)."""
 
     @functools.wraps(main)
     def wrapped(*args: Any, **kwargs: Any) -> Any:
         try:
             return main(*args, **kwargs)
-        except USER_ERRORS as e:
+        except (*USER_ERRORS, FloatingPointError) as e:
             if _multirun():
                 raise
             print(f"{Path(sys.argv[0]).stem}: {' '.join(str(e).split())}", file=sys.stderr, flush=True)
-            raise SystemExit(USER_ERROR_EXIT) from None
+            raise SystemExit(DIVERGED_EXIT if isinstance(e, FloatingPointError) else USER_ERROR_EXIT) from None
 
     return wrapped
 

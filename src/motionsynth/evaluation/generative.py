@@ -132,6 +132,9 @@ the windows of ``A``.
 * VAE-LSTM: ``z_1`` from the prior (no seed frames) driven by ``A``'s ground-truth controls, as the
   paper synthesises; it takes no class label, so its class is the one the controls imply
   (bandai2_locomotion: walk / walk-turn-left / walk-turn-right / run).
+* The GAN family (``model.adversarial``: SA-GCN, ...): one clip of noise and the window's class label
+  after the model's ``seed_frames`` ground-truth poses, which are copied in front (these generators
+  take no seed; the poses after the seed do not depend on it), as the MMD suite scores them.
 * Stochastic or deterministic is measured, not declared: each method generates ``stochastic_check_windows`` (4) windows under
   two seeds; identical outputs -> deterministic (one generation, ``ctx.add``, note
   "deterministic"); else one generation per ``ctx.seeds`` (``ctx.add_seeds``, mean +- std).
@@ -512,6 +515,14 @@ def methods(ctx: EvalContext, data, T: int) -> list[Method]:
 
             out.append(Method(name, run, f"prior sample (no seed frames), ground-truth controls of {T} frames "
                                          f"({T / fps:.1f} s); no class input: the controls imply the class", vae))
+        elif getattr(model, "adversarial", False):     # the GAN family: a clip from noise and the class
+            S = min(int(model.seed_frames), T - 1)
+
+            def gan(b, s, model=model, S=S, dev=dev):
+                return Generated(model.generate(b.pose.to(dev)[:, :S], labels=b.labels.to(dev), length=T), S)
+
+            out.append(Method(name, run, f"class label and noise; the {S} ground-truth seed frames of {T} are copied "
+                              "in front (the generator takes no seed), as in the MMD suite", gan))
         else:
             S = min(int(getattr(model, "seed_frames", 0) or 0), T - 1)
 

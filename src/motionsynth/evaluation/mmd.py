@@ -93,6 +93,10 @@ Calibration rows (``kind="reference"``), per protocol, from real data and no mod
 * ``Gaussian noise``: independent normal vectors per sample and frame with, per class and dimension,
   the mean and std of the real clips of ``R_p``.
 
+Stochastic generators (the GAN family, measured by :meth:`EvalContext.is_stochastic`: two seeds, four
+clips) generate once per seed of ``ctx.seeds`` (torch seeded with it before each protocol's batch) and
+report mean +- std over the seeds, like the random calibration rows; deterministic models one value.
+
 Random rows are repeated for every seed of ``ctx.seeds`` (numpy ``default_rng([seed, i])``, ``i`` the
 protocol's index; one generator per seed for the 2nd draw, the still poses and the noise, in that order) and
 reported as mean +- std over seeds (``ctx.add_seeds``). The models are deterministic at evaluation
@@ -152,6 +156,7 @@ from ..checks import one_of
 from ..data.clips import gather
 from ..data.types import ConfigError
 from ..metrics.mmd import CROSS, NEGATIVE, MMDResult, mmd
+from ..models.base import Batch
 from .context import EvalContext, slug
 from .horizon import ablation_note, glogen_runs
 
@@ -448,7 +453,12 @@ def run(ctx: EvalContext) -> None:
                 and np.allclose(train_data.norm.std, data["test"].norm.std)):
             raise ValueError(f"{ctx.name}: run {run_name} was trained with other normalisation statistics than "
                              f"the {family} test windows (another representation or protocol?)")
-        note = "deterministic"
+        few = windows["test"][:4, :S]
+        stochastic = ctx.is_stochastic(lambda b, s: generate(model, b.pose.numpy(), b.labels.numpy(), S + P, ctx.device),
+                                       Batch(torch.as_tensor(few), labels=torch.as_tensor(lab[:4])), 4)
+        seeds = list(ctx.seeds) if stochastic else ctx.seeds[:1]
+        note = (f"stochastic (a generator of noise): mean +- std over {len(seeds)} seeds ({seeds[0]}..{seeds[-1]}), "
+                "one generated clip per real clip and seed" if stochastic else "deterministic")
         seed_frames = getattr(model, "seed_frames", S)
         if seed_frames != S:
             note += f"; the model's own seed_frames is {seed_frames}, given {S} here"
@@ -458,11 +468,12 @@ def run(ctx: EvalContext) -> None:
             note += ("; as the paper's Table 3 row 'Our Method (GloGen)'; the published numbers were scored on the "
                      "train split" if run_name in plain_glogen else f"; {ablation_note(model)}; the paper's Table 2 "
                      "ablation is on NTU RGB+D 2-D, not on this benchmark")
-        fakes = {}
-        for proto in PROTOCOLS:
-            ctx.torch_seed(ctx.seeds[0])
-            fakes[proto] = generate(model, windows[proto][:, :S], lab, S + P, ctx.device)[:, S:S + P]
-        if not all(np.isfinite(f).all() for f in fakes.values()):
+        fakes = {proto: [] for proto in PROTOCOLS}
+        for s in seeds:
+            for proto in PROTOCOLS:
+                ctx.torch_seed(s)
+                fakes[proto].append(generate(model, windows[proto][:, :S], lab, S + P, ctx.device)[:, S:S + P])
+        if not all(np.isfinite(f).all() for fs in fakes.values() for f in fs):
             log.warning("%s mmd: run %s generated non-finite poses; its rows are NaN", ctx.name, run_name)
             for proto in PROTOCOLS:
                 for col, _, _ in FIGURES.values():
@@ -471,11 +482,11 @@ def run(ctx: EvalContext) -> None:
                             note="the model generated non-finite poses", **base)
             continue
         for proto in PROTOCOLS:
-            res = score(proto, fakes[proto], lab)
-            add(proto, method, [res], f"{note}; seeded with the {S} poses before each real clip ({SUBJECTS[proto]}) "
+            res = [score(proto, f, lab) for f in fakes[proto]]
+            add(proto, method, res, f"{note}; seeded with the {S} poses before each real clip ({SUBJECTS[proto]}) "
                 "it is scored against", run=run_name, kind=ctx.kind(run_name))
             if proto == "test":
-                per_class_curve(method, [res])
+                per_class_curve(method, res)
         outputs[run_name] = (method, model)
         timings[run_name] = round(time.perf_counter() - t0, 2)
 

@@ -626,7 +626,28 @@ def _judge_one(block: Block, claim: Mapping[str, Any], refs: Block | None = None
                 fails.append(col)
         return _verdict(fails, parts, skipped, method)
 
-    raise ValueError(f"claim {claim.get('id')}: unknown test {test!r} (lowest, growth, below_references, column_less)")
+    raise ValueError(f"claim {claim.get('id')}: unknown test {test!r} (lowest, growth, below_references, column_less, "
+                     "reproduces)")
+
+
+def _reproduces(block: Block, pub: Block | None, claim: Mapping[str, Any]) -> tuple[str, str]:
+    """The ``reproduces`` test: our value of the claim's method within ``tolerance`` (relative) of the
+    published value of the matching block (:func:`match`), at every column both hold."""
+    method, tol = claim["method"], float(claim.get("tolerance", 0.3))
+    if pub is None or method not in pub.cells:
+        return NA, f"no published {method} value for {block.compare_to or block.dataset}, {block.metric}"
+    fails, parts, skipped = [], [], []
+    for col in _columns(block, claim):
+        v, ref = block.value(method, col), pub.value(method, col)
+        if not (np.isfinite(v) and np.isfinite(ref) and ref != 0):
+            skipped.append(col)
+            continue
+        rel = v / ref - 1.0
+        parts.append(f"{col}: ours {fmt(v)} vs published {fmt(ref)} ({rel:+.0%}; within ±{tol:.0%}: "
+                     f"{'yes' if abs(rel) <= tol else 'no'})")
+        if abs(rel) > tol:
+            fails.append(col)
+    return _verdict(fails, parts, skipped, method)
 
 
 def evaluate_claim(claim: Mapping[str, Any], ours: pd.DataFrame, pub: pd.DataFrame,
@@ -649,10 +670,15 @@ def evaluate_claim(claim: Mapping[str, Any], ours: pd.DataFrame, pub: pd.DataFra
 
     out = []
     for b in ob:
-        if not _applies(b, claim):
+        if not _applies(b, claim) or (claim.get("protocol") and b.protocol != claim["protocol"]):
+            continue
+        if claim["test"] == "reproduces":         # ours against the paper's own number: no paper-side verdict
+            out.append(Outcome(where(b), "ours", *_reproduces(b, match(b, pb), claim)))
             continue
         v, d = _judge(b, claim, expected=held.get(b.table))
         out.append(Outcome(where(b), "ours", v, d))
+    if claim["test"] == "reproduces":
+        return ClaimResult(claim, out)
     for p in pb:
         if claim["test"] == "below_references":
             proto = claim.get("paper_protocol")

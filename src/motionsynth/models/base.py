@@ -9,7 +9,8 @@ Shapes at every boundary are ``[batch, time, joints, dims]``:
 * ``Batch.every``    sparse-pose stride ``k`` of the window (GlocalNet family): the
   sparse poses are ``pose[:, ::k]``; 1 for dense-only families.
 
-``DataSpec`` tells a model the sizes it is built for; a model is constructed as
+``DataSpec`` tells a model the sizes it is built for (and the skeleton, ``parents``, for models whose
+layers follow the bones); a model is constructed as
 ``Model(spec, **hyperparameters)`` from its Hydra config.
 """
 
@@ -32,6 +33,7 @@ class DataSpec:
     fps: float = 30.0
     window: int = 240         # frames per training window (dense)
     every: int = 1            # sparse stride k of the training windows (GlocalNet family)
+    parents: tuple[int, ...] | None = None   # the skeleton: each joint's parent index (-1: none kept), if known
 
     @property
     def pose_features(self) -> int:

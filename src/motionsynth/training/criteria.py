@@ -48,8 +48,9 @@ def horizon_weighted_ratio(err: Iterable[float], zero_velocity: Iterable[float],
 
 def converged(history: list[Mapping[str, float]], monitor: str, rel_tol: float = 0.01, tail: float = 0.2) -> bool:
     """Whether ``monitor`` improved by less than ``rel_tol`` (relative) over the last ``tail`` of
-    the steps (rows of ``history`` carry ``step`` and ``monitor``; module docstring)."""
-    rows = [h for h in history if monitor in h and math.isfinite(float(h[monitor]))]
+    the steps (rows of ``history`` carry ``step`` and ``monitor``; module docstring). Rows marked
+    ``selectable: 0`` (a round the model says cannot be chosen, e.g. SkeletonGAN's pose stage) do not count."""
+    rows = [h for h in history if monitor in h and math.isfinite(float(h[monitor])) and h.get("selectable", 1)]
     if not rows:
         return False
     last = max(float(h["step"]) for h in rows)

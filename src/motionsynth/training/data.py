@@ -35,6 +35,8 @@ class WindowData:
                 raise MissingDataError(f"{need} is missing: `dvc repro split@{ds}` makes it "
                                        f"(with the rest of {ds}'s prepared data and splits)")
         self.rep = json.loads((rep_dir / "representation.json").read_text())
+        skel = rep_dir / "skeleton.json"
+        self.parents = tuple(int(p) for p in json.loads(skel.read_text())["parents"]) if skel.exists() else None
         wpath = rep_dir / f"windows_{family}.parquet"
         if not wpath.exists():
             raise ConfigError(f"{rep_dir}: no '{family}' windows; conf/dataset/{ds}.yaml: prepare.representations."
@@ -80,7 +82,7 @@ class WindowData:
     def spec(self) -> DataSpec:
         return DataSpec(joints=int(self.pose.shape[1]), dims=int(self.pose.shape[2]), num_classes=self.num_classes,
                         controls=3 if self.controls is not None else 0, fps=float(self.rep["fps"]),
-                        window=self.length, every=self.every)
+                        window=self.length, every=self.every, parents=self.parents)
 
     def batch(self, idx: np.ndarray) -> Batch:
         """Windows ``idx`` as a normalised :class:`Batch`."""

@@ -238,7 +238,7 @@ def trainer_converged(history: list[dict], tcfg: TrainConfig, trainable: bool = 
 
 
 def _best_row(history: list[dict], monitor: str) -> dict:
-    rows = [h for h in history if monitor in h]
+    rows = [h for h in history if monitor in h and h.get("selectable", 1)] or [h for h in history if monitor in h]
     return min(rows, key=lambda h: h[monitor]) if rows else (history[-1] if history else {})
 
 

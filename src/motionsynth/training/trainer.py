@@ -7,6 +7,9 @@
 * Validation every ``eval_every`` steps (a *round*; the history's ``epoch`` counts rounds, ``step``
   the optimiser steps, ``data_epoch`` the passes over the data). Early stopping after ``patience``
   rounds without improvement of ``monitor``; ``best.pt`` holds the weights of the best round.
+* A model whose ``selectable`` is false after a round (SkeletonGAN in its pose stage, whose sequence
+  generator is not trained yet) has that round logged with ``selectable: 0``: it is neither a
+  candidate for ``best.pt`` nor counted by patience or ``converged``.
 * Selection: ``monitor`` is a criterion a constant (mean) pose cannot win, by default ``val/rel_zv``
   (:mod:`.criteria`: per-horizon MSE relative to zero-velocity, weighted ``1/h``); models without
   seed frames or with their own objective set theirs (LocGen: the error of its in-betweens; VAE-LSTM:
@@ -23,6 +26,19 @@
   once (after ``fit_statistics(train)`` where the model has it).
 * Progress hooks: the model's ``set_epoch(round)`` and ``set_progress(step, total_steps)`` (noise
   curricula, scheduled sampling, KL warm-up) are called before every step.
+* Adversarial models (``model.adversarial``: the GAN family, :mod:`motionsynth.models.adversarial`) train
+  with one optimiser per player (``model.players()``: generator, discriminator(s)); the model runs its
+  own algorithm in ``model.adversarial_step(batch, update)`` (which losses, how many discriminator
+  updates per generator update) and calls ``update(player, loss)``, which checks the loss, back-
+  propagates it, clips and steps that player's optimiser at the step's learning rate (``lr``, or
+  ``player_lr[player]`` where given, times the schedule's factor; ``betas`` for Adam). Selection is the model's own
+  ``validate(data, ...)`` (an MMD on the validation split: GANs have no validation loss).
+  Divergence stops the run (:class:`TrainingDiverged`): a non-finite loss of any player, or a
+  discriminator logit beyond ``max_logit`` (``logit_absmax`` in the step's logs). Nothing of the
+  diverged round is written: ``last.pt`` and ``best.pt`` keep the last good round, and no metrics
+  file is written. Everything else (budgets, schedules, atomic checkpoints, resume, determinism,
+  ``weights_only`` loads, per-round MLflow metrics) is the same code as for every model; DDP is
+  refused for them (one clear error).
 * Multi-process data parallel (DDP) under ``torchrun`` (:mod:`.distributed`; a single
   process runs exactly the code it ran before), e.g.
   ``torchrun --standalone --nproc_per_node=2 pipelines/train.py dataset=... model=...``:
@@ -100,6 +116,9 @@ class TrainConfig:
     weight_decay: float = 0.0
     momentum: float = 0.9         # SGD only
     grad_clip: float | None = 1.0
+    betas: list[float] | None = None  # Adam / AdamW (beta1, beta2); None: torch's (0.9, 0.999)
+    player_lr: dict[str, float] | None = None   # adversarial models: learning rate per player (others: lr)
+    max_logit: float = 1.0e4      # adversarial models: a discriminator logit beyond this magnitude is divergence
     patience: int = 5             # validation rounds without improvement before stopping
     min_delta: float = 0.0
     monitor: str = "val/rel_zv"   # selection criterion (motionsynth.training.criteria)
@@ -141,6 +160,17 @@ class TrainConfig:
             problems.append(f"train.momentum must lie in [0, 1), got {self.momentum!r}")
         if self.weight_decay < 0:
             problems.append(f"train.weight_decay must be >= 0, got {self.weight_decay!r}")
+        if self.betas is not None and not (
+                isinstance(self.betas, (list, tuple)) and len(self.betas) == 2
+                and all(isinstance(b, (int, float)) and not isinstance(b, bool) and 0 <= b < 1 for b in self.betas)):
+            problems.append(f"train.betas must be two numbers in [0, 1) or null, got {self.betas!r}")
+        if self.player_lr is not None and not (isinstance(self.player_lr, dict) and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 and math.isfinite(v)
+                for v in self.player_lr.values())):
+            problems.append(f"train.player_lr must map player names to positive numbers, or be null; "
+                            f"got {self.player_lr!r}")
+        if not (isinstance(self.max_logit, (int, float)) and self.max_logit > 0):
+            problems.append(f"train.max_logit must be a positive number, got {self.max_logit!r}")
         if not (isinstance(self.converged_tol, (int, float)) and self.converged_tol > 0):
             problems.append(f"train.converged_tol must be > 0, got {self.converged_tol!r}")
         if not (isinstance(self.converged_tail, (int, float)) and 0 < self.converged_tail < 1):
@@ -200,11 +230,54 @@ def make_optimizer(model: torch.nn.Module, cfg: TrainConfig) -> torch.optim.Opti
     params = [p for p in model.parameters() if p.requires_grad]
     if not params or getattr(model, "reference", False):
         return None
+    return optimizer_for(params, cfg, cfg.lr)
+
+
+def optimizer_for(params: list[torch.nn.Parameter], cfg: TrainConfig, lr: float) -> torch.optim.Optimizer:
+    """``cfg.optimizer`` over ``params`` at learning rate ``lr`` (Adam / AdamW with ``cfg.betas`` when set)."""
+    betas = {"betas": tuple(cfg.betas)} if cfg.betas is not None else {}
     if cfg.optimizer == "adamw":
-        return torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+        return torch.optim.AdamW(params, lr=lr, weight_decay=cfg.weight_decay, **betas)
     if cfg.optimizer == "sgd":
-        return torch.optim.SGD(params, lr=cfg.lr, weight_decay=cfg.weight_decay, momentum=cfg.momentum)
-    return torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+        return torch.optim.SGD(params, lr=lr, weight_decay=cfg.weight_decay, momentum=cfg.momentum)
+    return torch.optim.Adam(params, lr=lr, weight_decay=cfg.weight_decay, **betas)
+
+
+class TrainingDiverged(FloatingPointError):
+    """Training stopped on divergence (a non-finite loss, an exploding discriminator logit). The
+    checkpoints on disk are those of the last good round; nothing of the diverged round was written."""
+
+
+def kept(round_: int) -> str:
+    """What a run that diverged in ``round_`` leaves on disk (the end of :class:`TrainingDiverged`'s message)."""
+    return ("training stopped before its first checkpoint" if round_ == 0 else
+            f"training stopped; the checkpoints of round {round_ - 1} (the last good one) are kept")
+
+
+def player_optimizers(model: MotionModel, cfg: TrainConfig) -> dict[str, torch.optim.Optimizer]:
+    """One optimiser per player of an adversarial model (``model.players()``: name -> parameters; each at
+    :func:`player_lr`). Each trainable parameter belongs to exactly one player, or the model is refused."""
+    players = model.players()
+    if "generator" not in players:
+        raise ValueError(f"{type(model).__name__}.players() has no 'generator'; it has {sorted(players)}")
+    unknown = sorted(set(cfg.player_lr or {}) - set(players))
+    if unknown:
+        raise ValueError(f"train.player_lr names {unknown}, not players of {type(model).__name__} ({sorted(players)})")
+    seen: dict[int, str] = {}
+    for name, ps in players.items():
+        for p in ps:
+            if id(p) in seen:
+                raise ValueError(f"{type(model).__name__}: a parameter belongs to both {seen[id(p)]} and {name}")
+            seen[id(p)] = name
+    left = [n for n, p in model.named_parameters() if p.requires_grad and id(p) not in seen]
+    if left:
+        raise ValueError(f"{type(model).__name__}: parameters of no player: {left[:5]}")
+    return {name: optimizer_for(list(ps), cfg, player_lr(cfg, name)) for name, ps in players.items()}
+
+
+def player_lr(cfg: TrainConfig, player: str) -> float:
+    """The base learning rate of an adversarial model's ``player``: ``player_lr[player]``, else ``lr``."""
+    return float((cfg.player_lr or {}).get(player, cfg.lr))
 
 
 def target_of(model: MotionModel, batch: Batch) -> torch.Tensor:
@@ -249,7 +322,16 @@ class Trainer:
         self.is_main = self.rank == 0
         self.progress = progress and self.is_main
         self.model.to(self.device)
-        self.optim = make_optimizer(model, cfg)
+        self.adversarial = bool(getattr(model, "adversarial", False))
+        if self.adversarial:
+            if self.distributed:
+                raise ValueError(f"{type(model).__name__} is adversarial: training it under torchrun (DDP) is not "
+                                 "supported; run it as one process")
+            self.optims = player_optimizers(model, cfg)
+            self.optim = self.optims["generator"]
+        else:
+            self.optim = make_optimizer(model, cfg)
+            self.optims = {"model": self.optim} if self.optim is not None else {}
         self.ddp: torch.nn.parallel.DistributedDataParallel | None = None
         if self.distributed and self.optim is not None:  # nothing to synchronise without trainable parameters
             self.ddp = torch.nn.parallel.DistributedDataParallel(
@@ -262,7 +344,9 @@ class Trainer:
 
     # ------------------------------------------------------------------ state
     def state(self, epoch: int) -> dict[str, Any]:
-        return {"model": self.model.state_dict(), "optim": self.optim.state_dict() if self.optim else {},
+        optim = ({k: o.state_dict() for k, o in self.optims.items()} if self.adversarial
+                 else self.optim.state_dict() if self.optim else {})
+        return {"model": self.model.state_dict(), "optim": optim,
                 "epoch": epoch, "best": self.best, "bad_epochs": self.bad_epochs, "history": self.history,
                 "rng": torch.get_rng_state(), "fingerprint": self.fingerprint, "run_id": self.run_id or "",
                 "done": bool(self.done)}
@@ -277,7 +361,10 @@ class Trainer:
             log.warning("%s was written under another config; starting afresh", last)
             return False
         self.model.load_state_dict(st["model"])
-        if self.optim and st["optim"]:
+        if self.adversarial:
+            for k, o in self.optims.items():
+                o.load_state_dict(st["optim"][k])
+        elif self.optim and st["optim"]:
             self.optim.load_state_dict(st["optim"])
         self.start_epoch, self.best, self.bad_epochs = int(st["epoch"]) + 1, float(st["best"]), int(st["bad_epochs"])
         self.history = list(st["history"])
@@ -366,6 +453,18 @@ class Trainer:
                 batch = previous if previous is not None else self.train_data.batch(np.arange(min(bs, n)))
             batch = batch.to(self.device)
             previous = batch
+            if self.adversarial:
+                logs = self._adversarial_step(batch, round_, g)
+                value = float(logs["g_loss"])
+                total += value * mine
+                count += mine
+                for k, v in logs.items():
+                    terms[k] = terms.get(k, 0.0) + float(v) * mine
+                if self.on_step and self.is_main:
+                    self.on_step(round_, g, value)
+                bar.update(1)
+                bar.set_postfix(d=f"{float(logs['d_loss']):.3f}", g=f"{value:.3f}")
+                continue
             for group in self.optim.param_groups:
                 group["lr"] = self.cfg.lr * lr_factor(g, self.total_steps, self.cfg)
             loss, logs = self.ddp(batch) if self.ddp is not None else self.model.loss(batch)
@@ -397,6 +496,41 @@ class Trainer:
             bar.set_postfix(loss=f"{float(loss.detach()):.4f}")
         bar.close()
         return self._reduce_means(total, count, terms)
+
+    def _adversarial_step(self, batch: Batch, round_: int, g: int) -> dict[str, float]:
+        """Global step ``g`` of an adversarial model: the model's ``adversarial_step`` with an ``update``
+        that checks, back-propagates and applies one player's loss (module docstring). Returns the
+        step's logs (``d_loss`` and ``g_loss`` at least); raises :class:`TrainingDiverged`."""
+        factor = lr_factor(g, self.total_steps, self.cfg)
+        for name, opt in self.optims.items():
+            for group in opt.param_groups:
+                group["lr"] = player_lr(self.cfg, name) * factor
+
+        def update(player: str, loss: torch.Tensor) -> None:
+            if player not in self.optims:
+                raise KeyError(f"{type(self.model).__name__}.adversarial_step updated an unknown player {player!r}; "
+                               f"players: {sorted(self.optims)}")
+            if not torch.isfinite(loss):
+                raise TrainingDiverged(f"{type(self.model).__name__} diverged at step {g} (round {round_}): the "
+                                       f"{player} loss is {float(loss.detach())}; {kept(round_)}")
+            opt = self.optims[player]
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            if self.cfg.grad_clip:
+                torch.nn.utils.clip_grad_norm_([p for grp in opt.param_groups for p in grp["params"]],
+                                               self.cfg.grad_clip)
+            opt.step()
+
+        logs = {k: float(v) for k, v in self.model.adversarial_step(batch, update).items()}
+        missing = {"d_loss", "g_loss"} - set(logs)
+        if missing:
+            raise KeyError(f"{type(self.model).__name__}.adversarial_step must log {sorted(missing)}")
+        peak = logs.get("logit_absmax", 0.0)
+        if not math.isfinite(peak) or peak > self.cfg.max_logit:
+            raise TrainingDiverged(f"{type(self.model).__name__} diverged at step {g} (round {round_}): a "
+                                   f"discriminator logit reached {peak:.3g} (train.max_logit {self.cfg.max_logit:g}); "
+                                   f"{kept(round_)}")
+        return logs
 
     def _reduce_means(self, total: float, count: int, terms: dict[str, float]) -> dict[str, float]:
         """``train/*`` means over the windows of all ranks (all-reduce of sums and counts under DDP)."""
@@ -430,6 +564,16 @@ class Trainer:
         err_t = zv_t = mask = None
         g = torch.get_rng_state()
         torch.manual_seed(self.cfg.seed + 1)  # sampling models: the same draws at every evaluation
+        if hasattr(self.model, "validate"):   # a model with its own validation (GANs: an MMD on the split)
+            try:
+                out = self.model.validate(data, batch_size=self.cfg.eval_batch_size, device=self.device)
+            finally:
+                torch.set_rng_state(g)
+            bad = sorted(k for k, v in out.items() if not math.isfinite(float(v)))
+            if bad:  # never a NaN metric in the history: a generator that outputs NaN has diverged
+                raise TrainingDiverged(f"{type(self.model).__name__} diverged: validation {bad} not finite; training "
+                                       "stopped, the checkpoints of the last good round are kept")
+            return {f"{prefix}/{k}": float(v) for k, v in out.items()}
         if self.cfg.val_windows and self.cfg.val_windows < len(data):
             # evenly spaced windows: the same ones for every model of a dataset, spread over its sequences
             idx = np.linspace(0, len(data) - 1, self.cfg.val_windows).round().astype(np.int64)
@@ -487,12 +631,15 @@ class Trainer:
             if self.cfg.monitor not in metrics:
                 raise ValueError(f"train.monitor {self.cfg.monitor!r} is not a validation metric of "
                                  f"{type(self.model).__name__}; it reports {sorted(k for k in metrics if '/' in k)}")
+            selectable = bool(getattr(self.model, "selectable", True))
+            if not selectable:          # a round the model says cannot be chosen (SkeletonGAN's pose stage)
+                metrics["selectable"] = 0.0
             self.history.append(metrics)
             score = metrics[self.cfg.monitor]
-            if score < self.best - self.cfg.min_delta:
+            if selectable and score < self.best - self.cfg.min_delta:
                 self.best, self.bad_epochs = score, 0
                 self._save(r, "best.pt")
-            else:
+            elif selectable:
                 self.bad_epochs += 1
             stop = self.bad_epochs >= self.cfg.patience
             self.done = stop or r == rounds - 1
