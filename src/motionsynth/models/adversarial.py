@@ -49,15 +49,10 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .base import Batch, DataSpec, MotionModel
+from .recurrent import check_int as _count
 
 #: ``update(player, loss)``: the trainer's step of one player (check, backward, clip, optimiser step)
 Update = Callable[[str, Tensor], None]
-
-
-def _count(name: str, value, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return value
 
 
 def bce_logits(logits: Tensor, target: float) -> Tensor:
