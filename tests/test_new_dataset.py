@@ -103,7 +103,8 @@ evaluate:
 """
 PIPELINE = {"datasets": {DS: {"format": "bvh"}}, "evaluate": [DS],
             "train_runs": {f"{DS}-vae_lstm": {"dataset": DS, "model": "vae_lstm", "variant": "none",
-                                              "name": "vae_lstm", "src": "vae_lstm", "shared": "base"}}}
+                                              "name": "vae_lstm", "src": "vae_lstm", "shared": "base",
+                                              "family": "base", "extra": "models/base"}}}
 
 
 def _stage(root, name, *args, expect=0):

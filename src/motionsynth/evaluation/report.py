@@ -924,8 +924,10 @@ def write_report(reports: Path, datasets: Sequence[str], published: Path, opts: 
              "Each table: our value (mean ± std over seeds where the method or the measurement is random) on the "
              "`ours` line, the published value on the `paper` line; `—`: that side has no such row.",
              *[md for _, md in table_md]]
-    if "mmd" in (opts.get("notes") or {}):
-        parts += ["### What MMD can and cannot tell", str(opts["notes"]["mmd"]).strip()]
+    titles = opts.get("note_titles") or {}
+    for key, text in (opts.get("notes") or {}).items():       # `training` goes into the Training section
+        if key != "training":
+            parts += [f"### {titles.get(key, key)}", str(text).strip()]
     parts.append("## Plots")
     if figures:
         parts += [f"![{f.stem}](figures/eval/{f.name})" for f in figures]

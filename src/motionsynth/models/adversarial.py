@@ -48,8 +48,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .base import Batch, DataSpec, MotionModel
-from .recurrent import check_int as _count
+from .base import Batch, DataSpec, MotionModel, check_int as _count
 
 #: ``update(player, loss)``: the trainer's step of one player (check, backward, clip, optimiser step)
 Update = Callable[[str, Tensor], None]

@@ -24,6 +24,13 @@ import torch
 from torch import Tensor, nn
 
 
+def check_int(name: str, value, minimum: int = 1) -> int:
+    """A model hyperparameter that must be an integer >= ``minimum`` (a one-line error naming it)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
 @dataclass(frozen=True)
 class DataSpec:
     joints: int               # J

@@ -103,13 +103,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .base import Batch, DataSpec, MotionModel
-
-
-def _check_int(name: str, value, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return value
+from .base import Batch, DataSpec, MotionModel, check_int as _check_int
 
 
 def _check_float(name: str, value, minimum: float = 0.0, maximum: float | None = None,

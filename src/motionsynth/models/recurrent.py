@@ -77,7 +77,7 @@ from torch import Tensor, nn
 from torch.autograd import Function
 from torch.autograd.function import once_differentiable
 
-from .base import Batch, DataSpec, MotionModel
+from .base import Batch, DataSpec, MotionModel, check_int
 
 CONTROL_MODES = ("given", "predict")
 FAMILIES = (None, "vae_lstm", "glocal")
@@ -89,12 +89,6 @@ MODULE_RUN = 16
 
 
 # ----------------------------------------------------------------------------- validation
-def check_int(name: str, value, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
 def check_sizes(name: str, value) -> tuple[int, ...]:
     if isinstance(value, int):
         value = (value,)
