@@ -30,6 +30,8 @@ TRAIN = [("bandai2_locomotion", "vae_lstm"), ("h36m", "glogen"), ("cmu_aclstm", 
 # and one dataset's evaluation (it trains that dataset's other runs) and animations; the report runs on its own
 # (`dvc repro -s report`: the datasets not evaluated here are reported as such)
 EVAL = "h36m"
+# its runs here: a sparse-pose model, a recurrent baseline, a GAN and the two reference rows
+EVAL_RUNS = {f"{EVAL}-{m}" for m in ("glogen", "erd", "sagcn", "zero_velocity", "mean_pose")}
 TARGETS = ["data_report", *(f"train@{ds}-{m}" for ds, m in TRAIN), f"evaluate@{EVAL}", f"animate@{EVAL}"]
 
 
@@ -62,8 +64,12 @@ def smoke_clone(tmp_path_factory):
     dvc = [sys.executable, "-m", "dvc"]
     sh(dvc + ["remote", "modify", "--local", "team", "url", str(STORE.parent.parent)], dst, env)
     sh(dvc + ["pull", "--allow-missing"], dst, env)
-    # what `dvc exp run -S profile=smoke` writes: params.yaml composed from conf/ with the smoke profile
-    (dst / "params.yaml").write_text(compose_params(dst, ["profile=smoke"]))
+    # what `dvc exp run -S profile=smoke` writes: params.yaml composed from conf/ with the smoke profile; the
+    # evaluated dataset keeps one run per kind of model (its stages' start-ups dominate the suite's time)
+    params = yaml.safe_load(compose_params(dst, ["profile=smoke"]))
+    params["train_runs"] = {k: v for k, v in params["train_runs"].items()
+                            if v["dataset"] != EVAL or k in EVAL_RUNS}
+    (dst / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     out = sh(dvc + ["repro", *TARGETS], dst, env)
     out += sh(dvc + ["repro", "-s", "report"], dst, env)
     return dst, env, out
