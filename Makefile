@@ -1,5 +1,6 @@
 # Two commands from a fresh clone (python3 + pip, ../shared beside the clone):
-#   make run    - install into .venv, `dvc pull`, `dvc repro` (the default profile)
+#   make run    - install into .venv, `dvc pull`, then `dvc repro` (the default profile) with one stage per core
+#                 at a time (python -m motionsynth.repro; JOBS=1 runs one at a time, as plain `dvc repro`)
 #   make test   - install into .venv (with test extras) and run the whole test suite
 PYTHON ?= python3
 VENV   ?= .venv
@@ -18,9 +19,11 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+JOBS ?= auto
+
 run: install
 	$(BIN)/dvc pull --allow-missing
-	$(BIN)/dvc repro
+	$(BIN)/python -m motionsynth.repro -j $(JOBS)
 
 test: install
 	$(BIN)/python -m pytest -q

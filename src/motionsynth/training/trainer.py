@@ -341,6 +341,8 @@ class Trainer:
         self.history: list[dict[str, float]] = []
         self.run_id: str | None = None
         self.done = False  # finished (all epochs, or stopped early): a rerun trains no further
+        # training seconds of earlier processes of this run (a resumed run reports its whole time)
+        self.seconds_before, self._t0 = 0.0, time.perf_counter()
 
     # ------------------------------------------------------------------ state
     def state(self, epoch: int) -> dict[str, Any]:
@@ -349,7 +351,11 @@ class Trainer:
         return {"model": self.model.state_dict(), "optim": optim,
                 "epoch": epoch, "best": self.best, "bad_epochs": self.bad_epochs, "history": self.history,
                 "rng": torch.get_rng_state(), "fingerprint": self.fingerprint, "run_id": self.run_id or "",
-                "done": bool(self.done)}
+                "done": bool(self.done), "seconds": self.seconds()}
+
+    def seconds(self) -> float:
+        """Training seconds of this run so far, over every process that resumed it."""
+        return self.seconds_before + time.perf_counter() - self._t0
 
     def try_resume(self) -> bool:
         """Resume from ``last.pt`` when it exists and was written under the same config."""
@@ -371,6 +377,7 @@ class Trainer:
         torch.set_rng_state(st["rng"])
         self.run_id = st.get("run_id") or None
         self.done = bool(st.get("done", False))
+        self.seconds_before, self._t0 = float(st.get("seconds", 0.0)), time.perf_counter()
         log.info("resumed from %s at round %d", last, self.start_epoch)
         return True
 
@@ -606,7 +613,8 @@ class Trainer:
 
     # ------------------------------------------------------------------ the loop
     def fit(self) -> dict[str, Any]:
-        t0 = time.perf_counter()
+        if not self.history:  # a fresh run: its clock starts here (a resumed one goes on from its checkpoint)
+            self.seconds_before, self._t0 = 0.0, time.perf_counter()
         if len(self.train_data) == 0 or len(self.val_data) == 0:
             raise ValueError(f"empty data: {len(self.train_data)} train and {len(self.val_data)} val windows")
         rounds = self.rounds if not self.done else 0
@@ -659,5 +667,5 @@ class Trainer:
                              self.cfg.monitor, self.cfg.patience)
                 break
         return {"history": self.history, "best": self.best, "epochs_run": len(self.history),
-                "seconds": time.perf_counter() - t0, "config": asdict(self.cfg),
+                "seconds": self.seconds(), "config": asdict(self.cfg),
                 "steps_per_pass": self.steps_per_pass, "total_steps": self.total_steps}

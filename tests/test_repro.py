@@ -1,0 +1,90 @@
+"""`python -m motionsynth.repro`, the parallel `dvc repro` of `make run`, on a small DVC project of its own:
+independent stages overlap, dvc.lock ends as `dvc repro` would write it (a plain `dvc repro` then runs
+nothing), a failed stage skips only its downstream stages, and an unchanged stage is not rerun."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+# a stage that records when it ran, sleeps, and writes its output
+STAMP = ("python -c \"import json,sys,time; t=time.time(); time.sleep(float(sys.argv[2])); "
+         "open(sys.argv[1],'w').write(json.dumps([t, time.time()]))\"")
+
+
+def sh(args, cwd, env, check=True):
+    r = subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True)
+    if check:
+        assert r.returncode == 0, f"{args} failed:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}"
+    return r
+
+
+@pytest.fixture
+def project(tmp_path):
+    env = {**os.environ, "DVC_NO_ANALYTICS": "1", "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t",
+           "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t",
+           "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    (tmp_path / "dvc.yaml").write_text(textwrap.dedent(f"""\
+        stages:
+          slow_a:
+            cmd: {STAMP} a.json 2
+            outs: [a.json]
+          after_a:
+            cmd: python -c "import shutil; shutil.copy('a.json', 'b.json')"
+            deps: [a.json]
+            outs: [b.json]
+          slow_c:
+            cmd: {STAMP} c.json 2
+            outs: [c.json]
+          broken:
+            cmd: python -c "raise SystemExit(3)"
+            outs: [broken.json]
+          after_broken:
+            cmd: python -c "open('d.json', 'w').write('1')"
+            deps: [broken.json]
+            outs: [d.json]
+        """))
+    sh(["git", "init", "-q"], tmp_path, env)
+    sh([sys.executable, "-m", "dvc", "init", "-q"], tmp_path, env)
+    sh(["git", "add", "-A"], tmp_path, env)
+    sh(["git", "commit", "-qm", "p"], tmp_path, env)
+    return tmp_path, env
+
+
+def test_parallel_repro_overlaps_commits_like_dvc_and_skips_only_downstream_of_a_failure(project):
+    root, env = project
+    r = sh([sys.executable, "-m", "motionsynth.repro", "-j", "2"], root, env, check=False)
+    out = r.stdout + r.stderr
+    assert r.returncode == 1, out                      # one stage failed
+    assert "stage 'broken' failed (exit status 3)" in out
+    assert "skipping 'after_broken': an upstream stage failed" in out
+    assert "5 stages: 3 ran, 0 unchanged, 1 failed, 1 skipped" in out
+    a, c = (json.loads((root / f).read_text()) for f in ("a.json", "c.json"))
+    assert a[0] < c[1] and c[0] < a[1], "the two independent 2-second stages did not overlap"
+    assert (root / "b.json").read_text() == (root / "a.json").read_text()
+    # dvc.lock holds what `dvc repro` writes: DVC itself finds the three stages up to date ...
+    st = json.loads(sh([sys.executable, "-m", "dvc", "status", "--json"], root, env).stdout)
+    assert set(st) == {"broken", "after_broken"}, st
+    plain = sh([sys.executable, "-m", "dvc", "repro", "slow_a", "after_a", "slow_c"], root, env).stdout
+    assert "Running stage" not in plain
+    # ... and the outputs are in the cache (a deleted one comes back with `dvc checkout`)
+    (root / "b.json").unlink()
+    sh([sys.executable, "-m", "dvc", "checkout", "after_a"], root, env)
+    assert (root / "b.json").exists()
+    times = json.loads((root / "reports" / "stage_times.json").read_text())
+    assert set(times) == {"slow_a", "after_a", "slow_c"} and times["slow_a"] >= 2
+    # a second run reruns nothing that is up to date
+    r2 = sh([sys.executable, "-m", "motionsynth.repro", "slow_a", "after_a", "slow_c"], root, env)
+    assert "Running stage" not in r2.stdout and r2.stdout.count("didn't change, skipping") == 3
+
+
+def test_bad_jobs_value_is_a_clear_error(project):
+    root, env = project
+    r = sh([sys.executable, "-m", "motionsynth.repro", "-j", "0"], root, env, check=False)
+    assert r.returncode == 2 and "--jobs must be 'auto' or an integer >= 1, got '0'" in r.stderr
