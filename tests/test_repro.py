@@ -88,3 +88,17 @@ def test_bad_jobs_value_is_a_clear_error(project):
     root, env = project
     r = sh([sys.executable, "-m", "motionsynth.repro", "-j", "0"], root, env, check=False)
     assert r.returncode == 2 and "--jobs must be 'auto' or an integer >= 1, got '0'" in r.stderr
+
+
+def test_a_freed_slot_is_refilled_before_the_finished_stage_is_committed(project):
+    """DVC's save, commit and lock of a finished stage take seconds; a stage that does not wait on it
+    starts first (with one slot, the second stage's start is logged before the first one's end)."""
+    root, env = project
+    out = sh([sys.executable, "-m", "motionsynth.repro", "-j", "1", "slow_a", "slow_c"], root, env).stdout
+    lines = out.splitlines()
+    starts = [i for i, s in enumerate(lines) if "Running stage" in s]
+    ends = [i for i, s in enumerate(lines) if "finished in" in s]
+    assert len(starts) == 2 and len(ends) == 2, out
+    assert starts[1] < ends[0], out
+    st = json.loads(sh([sys.executable, "-m", "dvc", "status", "--json", "slow_a", "slow_c"], root, env).stdout)
+    assert st == {}, st

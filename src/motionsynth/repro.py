@@ -68,6 +68,7 @@ class Runner:
         self.failed: set = set()
         self.skipped: set = set()
         self.running: dict = {}  # stage -> (process, start time, pump thread)
+        self.ending: set = set()  # commands done, DVC bookkeeping not yet
         self.ran: dict[str, float] = {}
         root = Path(repo.root_dir)
         self.times_path = root / TIMES_FILE
@@ -81,7 +82,7 @@ class Runner:
     def ready(self) -> list:
         out = []
         for st in self.steps:
-            if st in self.done or st in self.failed or st in self.skipped or st in self.running:
+            if st in self.done or st in self.failed or st in self.skipped or st in self.running or st in self.ending:
                 continue
             ups = self.upstream(st)
             if any(u in self.failed or u in self.skipped for u in ups):
@@ -128,18 +129,39 @@ class Runner:
         self.done.add(st)
 
     def reap(self) -> None:
+        """Collect the finished commands; refill the freed slots with stages that do not wait on them
+        *before* the DVC bookkeeping of the finished ones (save, commit, lock: a few seconds each), so a
+        slot does not idle through it; then the bookkeeping, which may make downstream stages ready."""
+        ended = []
         for st, (proc, t0, pt) in list(self.running.items()):
             if proc.poll() is None:
                 continue
             pt.join()
             del self.running[st]
             if proc.returncode == 0:
-                self.finish(st, t0)
-                log(f"Stage '{st.addressing}' finished in {self.ran[st.addressing]:.0f} s")
+                ended.append((st, t0))
+                self.ending.add(st)
             else:
                 self.failed.add(st)
                 log(f"ERROR: stage '{st.addressing}' failed (exit status {proc.returncode}); "
                     "its downstream stages will be skipped")
+        if not ended:
+            return
+        self.fill()
+        for st, t0 in ended:
+            self.ending.discard(st)
+            self.finish(st, t0)
+            log(f"Stage '{st.addressing}' finished in {self.ran[st.addressing]:.0f} s")
+
+    def fill(self) -> None:
+        """Start ready stages until ``jobs`` run (a skipped or cached stage can make others ready)."""
+        progressed = True
+        while progressed and len(self.running) < self.jobs:
+            progressed = False
+            for st in self.ready():
+                self.start(st)
+                progressed = True
+                break
 
     def stop(self) -> None:
         for proc, _, _ in self.running.values():
@@ -152,15 +174,7 @@ class Runner:
         t_start = time.perf_counter()
         try:
             while True:
-                progressed = True
-                while progressed and len(self.running) < self.jobs:
-                    progressed = False
-                    for st in self.ready():
-                        if len(self.running) >= self.jobs:
-                            break
-                        self.start(st)
-                        progressed = True
-                        break  # a skipped stage can make others ready: look again
+                self.fill()
                 if not self.running:
                     break
                 time.sleep(POLL_S)
