@@ -111,6 +111,24 @@ def test_one_adversarial_step_changes_both_players(root, tmp_path):
     assert tr.optims["generator"].param_groups[0]["betas"] == (0.5, 0.999)
 
 
+def test_class_head_trains_both_players_on_the_clips_class(root, tmp_path):
+    """The 2020 reference's auxiliary classifier: D_V's class logits, their cross-entropy in both losses."""
+    tr = _trainer(root, tmp_path, "+model_args.class_head=true")
+    head = tr.model.discriminators["sequence"].classify
+    assert head is not None and head.out_features == tr.model.num_classes
+    before = {n: p.detach().clone() for n, p in tr.model.named_parameters()}
+    torch.manual_seed(0)
+    logs = tr._adversarial_step(tr.train_data.batch(np.arange(8)), 0, 0)
+    assert {"class_real", "class_fake"} <= set(logs)
+    # an untrained head is near chance: its cross-entropy about log(C)
+    assert logs["class_real"] == pytest.approx(math.log(tr.model.num_classes), rel=0.5)
+    changed = {n for n, p in tr.model.named_parameters() if not torch.equal(before[n], p)}
+    assert "discriminators.sequence.classify.weight" in changed
+    assert _trainer(root, tmp_path).model.discriminators["sequence"].classify is None   # off by default
+    with pytest.raises(ValueError, match="class_head must be true or false"):
+        SAGCN(spec(), **{**SMOKE, "class_head": "yes"})
+
+
 def test_validation_selects_on_an_mmd_of_the_validation_split(root, tmp_path):
     tr = _trainer(root, tmp_path)
     out = tr.evaluate(tr.val_data)
@@ -264,3 +282,23 @@ def test_pose_stage_rounds_are_never_selected(root, tmp_path):
     hist = load(tmp_path / DS / "skeleton_gan/last.pt")["history"]
     assert [h.get("selectable", 1) for h in hist] == [0.0, 1, 1]
     assert s["best_step"] in (4, 6)
+
+
+def test_latent_walk_is_the_references_cumulative_sum_and_off_in_the_default_size(root):
+    """``latent_walk: true`` (the reference): frame t's latent is s_0 + the sum of the GRU's outputs up to t;
+    ``false`` (ours, the default size): the GRU's output itself. Checked on the latent attention's input."""
+    seen = {}
+    for walk in (True, False):
+        m = SAGCN(spec(), **{**SMOKE, "latent_walk": walk})
+        m.generator.attn_latent.register_forward_hook(lambda mod, i, o, w=walk: seen.__setitem__(w, i[0]))
+        torch.manual_seed(0)
+        m.sample(torch.tensor([0, 1]), 50)
+    H = SMOKE["hidden"]
+    walk, plain = seen[True][..., :H], seen[False][..., :H]
+    steps = walk.diff(dim=1)                                       # the increments are GRU outputs: |.| < 1
+    assert steps.abs().max() < 1 and walk[:, 0].min() >= -1 and plain.abs().max() < 1
+    assert walk.abs().amax(1).mean() > plain.abs().amax(1).mean()  # the sum wanders beyond one step's range
+    assert compose_cfg(root, DS, "model=sagcn")["model"]["sizes"]["default"]["latent_walk"] is False
+    assert compose_cfg(root, DS, "model=sagcn")["model"]["sizes"]["paper"]["latent_walk"] is True
+    with pytest.raises(ValueError, match="latent_walk must be true or false"):
+        SAGCN(spec(), **{**SMOKE, "latent_walk": 1})
