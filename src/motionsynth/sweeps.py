@@ -29,11 +29,11 @@ import json
 import logging
 import os
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from . import tracking
+from .training.job import Job, mlflow_run_name, run_name
 
 log = logging.getLogger(__name__)
 
@@ -45,22 +45,6 @@ _HIDDEN = ("progress", "paths.", "tracking.", "hydra.", "hydra/", "train.threads
 _NOT_KEY = _HIDDEN + ("dataset", "model", "variant", "run_name", "profile", "hparams_search")
 
 
-@dataclass
-class Job:
-    """Where one training job writes, and how it appears in MLflow."""
-
-    out_dir: Path | None = None           # None: <paths.models>/<dataset>/<run_name> (the DVC stages)
-    experiment: str | None = None         # None: <tracking.experiment_prefix>/<dataset>
-    overrides: list[str] = field(default_factory=list)   # the job's key overrides (tag, checkpoint folder)
-    parent_run_id: str | None = None
-    sweep: bool = False
-    swept: list[str] = field(default_factory=list)       # the sweep's varying keys: they alone name a child run
-
-    @property
-    def name_overrides(self) -> list[str]:
-        return [o for o in self.overrides if o.split("=", 1)[0] in self.swept] if self.swept else self.overrides
-
-
 def key_overrides(overrides: Sequence[str], drop: Sequence[str] = _NOT_KEY) -> list[str]:
     """The overrides that distinguish runs of one model on one dataset (``train.lr=0.002``),
     without the ones the name already says or that do not change results."""
@@ -70,11 +54,6 @@ def key_overrides(overrides: Sequence[str], drop: Sequence[str] = _NOT_KEY) -> l
         if not any(k.startswith(n) if n[-1] in "./" else k == n for n in drop):
             out.append(o.lstrip("+"))
     return sorted(out)
-
-
-def mlflow_run_name(model_run: str, dataset: str, overrides: Sequence[str] = ()) -> str:
-    """``train:glogen@h36m train.lr=0.002``: model (run), dataset and the key overrides."""
-    return " ".join([f"train:{model_run}@{dataset}", *overrides])
 
 
 def slug(overrides: Sequence[str]) -> str:
@@ -101,17 +80,11 @@ def job_context(cfg: Mapping[str, Any]) -> Job:
         if any(o.startswith("run_name=") for o in task):  # a DVC stage: its run name says the seed replica
             keys = key_overrides(task, _NOT_KEY + ("seed",))
         return Job(overrides=keys)
-    ds, name = cfg["dataset"]["name"], _run_name(cfg)
+    ds, name = cfg["dataset"]["name"], run_name(dict(cfg))
     parent = read_parent(Path(hc.sweep.dir)) or {}
     return Job(out_dir=Path(cfg["paths"]["models"]) / "sweeps" / ds / name / slug(keys),
                experiment=cfg["tracking"]["sweep_experiment"], overrides=keys,
                parent_run_id=parent.get("run_id"), sweep=True, swept=list(parent.get("swept", [])))
-
-
-def _run_name(cfg: Mapping[str, Any]) -> str:
-    from .training.run import run_name
-
-    return run_name(dict(cfg))
 
 
 def read_parent(sweep_dir: Path) -> dict | None:

@@ -65,12 +65,13 @@ import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
 from .context import COLUMNS, slug
+from .markdown import md_table
 from .training import section as training_section
 
 log = logging.getLogger(__name__)
@@ -145,16 +146,6 @@ def cell(value: float | None, std: float = math.nan, digits: int = 3) -> str:
     if std is not None and np.isfinite(std):
         s += f" ± {fmt(std, 2)}"
     return s
-
-
-def md_escape(s: Any) -> str:
-    return str(s).replace("|", "\\|").replace("\n", " ")
-
-
-def md_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
-    lines = ["| " + " | ".join(md_escape(h) for h in header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(md_escape(c) for c in r) + " |" for r in rows]
-    return "\n".join(lines)
 
 
 # ============================================================================ blocks

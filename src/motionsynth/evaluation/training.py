@@ -26,6 +26,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from .markdown import md_table
+
 
 def read_runs(reports: Path, dataset: str) -> list[dict[str, Any]]:
     """The summaries of a dataset's training runs (sorted by run name), each with its curve (``_curve``)."""
@@ -96,8 +98,6 @@ def section(reports: Path, datasets: Sequence[str], fig_dir: Path, opts: Mapping
         return "No training summaries (`reports/metrics/train/<dataset>/*.json`) yet.", figures
     header = ["dataset", "run", "steps run / budget", "selected step", "converged", "selection criterion (val)",
               "val pred MSE", "zero-velocity MSE", "train s"]
-    from .report import md_table
-
     parts = ["Every training stage: its budget in optimiser steps, the step whose weights were selected (on the "
              "validation split, by the selection criterion; `rel_zv`: per-horizon MSE relative to zero-velocity, "
              "weighted 1/h, which a constant pose cannot win), and whether it converged (the criterion improved by "

@@ -23,7 +23,7 @@ from typing import Any, Mapping
 
 from omegaconf import OmegaConf
 
-from ..sweeps import Job
+from .job import Job
 from .run import run
 
 log = logging.getLogger(__name__)

@@ -22,6 +22,7 @@ from . import distributed
 from .checkpoint import fingerprint
 from .criteria import converged
 from .data import open_split
+from .job import Job, mlflow_run_name, run_name
 from .trainer import TrainConfig, Trainer, seed_everything
 
 log = logging.getLogger(__name__)
@@ -118,15 +119,6 @@ def load_trained(run_dir: str | Path, paths: dict[str, Any] | None = None, check
     return model.eval(), train
 
 
-def run_name(cfg: dict[str, Any]) -> str:
-    """``run_name``, else ``<model>`` or ``<model>-<variant_name>``: names the run's folder under
-    ``models/<dataset>/``, its metrics file and its MLflow run."""
-    if cfg.get("run_name"):
-        return str(cfg["run_name"])
-    variant = cfg.get("variant_name")
-    return cfg["model"]["name"] + (f"-{variant}" if variant else "")
-
-
 def git_commit(root: str | Path) -> str:
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
@@ -153,10 +145,8 @@ def dataset_hash(root: str | Path, dataset: str) -> str:
 def run(cfg: dict[str, Any], progress: bool = True, job=None) -> dict[str, Any]:
     """Train one (model, dataset) pair; returns the summary written to the metrics file.
 
-    ``job`` (:class:`motionsynth.sweeps.Job`): where a sweep's job writes and its MLflow
+    ``job`` (:class:`motionsynth.training.job.Job`): where a sweep's job writes and its MLflow
     parent; ``None``: the DVC stage layout, ``<paths.models>/<dataset>/<run_name>``."""
-    from ..sweeps import Job, mlflow_run_name
-
     job = job or Job()
     model, train, val, tcfg = build(cfg)
     ds, m, name = cfg["dataset"]["name"], cfg["model"]["name"], run_name(cfg)
