@@ -19,7 +19,7 @@ from motionsynth.data.ingest import ingest
 from motionsynth.data.prepare import prepare
 from motionsynth.data.splits import split_dataset
 from motionsynth.training.checkpoint import load
-from motionsynth.training.run import run
+from motionsynth.training.run import dataset_hash, run
 
 DS = "bandai2_locomotion"
 
@@ -170,3 +170,40 @@ def test_mlflow_run_has_params_tags_metrics_and_artifacts(root, tmp_path, monkey
     art = Path(con.execute("select artifact_uri from runs where run_uuid=?", (run_id,)).fetchone()[0]
                .replace("file://", ""))
     assert {"config.yaml", "best.pt", "sample.png"} <= {p.name for p in art.iterdir()}
+
+
+LOCK = """schema: '2.0'
+stages:
+  prepare@toy:
+    cmd: python pipelines/prepare.py dataset=toy
+    outs:
+    - path: data/processed/toy
+      md5: aaa.dir
+  split@toy:
+    cmd: python pipelines/split.py dataset=toy
+    outs:
+    - path: data/splits/toy
+      md5: bbb.dir
+"""
+
+
+def test_dataset_hash_rereads_a_lock_another_stage_is_rewriting(tmp_path):
+    """`make run` runs stages side by side: DVC may be rewriting dvc.lock (truncated, then written) just
+    as a training stage reads it for its MLflow tag. An empty or cut-off read is read again; a lock that
+    stays unreadable gives "unknown", never an exception (it once failed a stage)."""
+    import threading
+
+    lock = tmp_path / "dvc.lock"
+    lock.write_text(LOCK)
+    assert dataset_hash(tmp_path, "toy") == "aaa.dir+bbb.dir"
+    for partial in ("", LOCK[:LOCK.index("  split@toy")], LOCK[:LOCK.index("      md5: aaa")] + "      md5: [\n"):
+        lock.write_text(partial)
+        timer = threading.Timer(0.15, lock.write_text, args=(LOCK,))
+        timer.start()
+        try:
+            assert dataset_hash(tmp_path, "toy", attempts=50, wait_s=0.02) == "aaa.dir+bbb.dir"
+        finally:
+            timer.join()
+    lock.write_text("")
+    assert dataset_hash(tmp_path, "toy", attempts=3, wait_s=0.01) == "unknown"
+    assert dataset_hash(tmp_path / "nowhere", "toy") == "unknown"

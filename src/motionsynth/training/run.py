@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import subprocess
+import time
 from pathlib import Path
 from typing import Any
 
@@ -127,19 +128,33 @@ def git_commit(root: str | Path) -> str:
         return "unknown"
 
 
-def dataset_hash(root: str | Path, dataset: str) -> str:
-    """The DVC md5 of the dataset's prepared data and splits, from dvc.lock."""
+def dataset_hash(root: str | Path, dataset: str, attempts: int = 10, wait_s: float = 0.1) -> str:
+    """The DVC md5 of the dataset's prepared data and splits, from dvc.lock.
+
+    Under ``make run`` another stage's DVC bookkeeping may be rewriting dvc.lock as this reads it (DVC
+    truncates the file, then writes it): an empty, unparsable or cut-off read, one without the dataset's
+    ``prepare`` and ``split`` entries, is read again after ``wait_s`` seconds, up to ``attempts`` times,
+    and then gives ``"unknown"`` (it is an MLflow tag, never a reason to fail a training stage)."""
     lock = Path(root) / "dvc.lock"
     if not lock.exists():
         return "unknown"
+    wanted = (f"prepare@{dataset}", f"split@{dataset}")
     # dvc.lock grows with every stage: libyaml's loader reads it in ~0.1 s where the pure-Python one took ~2 s
-    stages = yaml.load(lock.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader)).get("stages", {})
-    parts = []
-    for stage in (f"prepare@{dataset}", f"split@{dataset}"):
-        for out in stages.get(stage, {}).get("outs", []):
-            if out["path"].startswith("data/"):
-                parts.append(out.get("md5", "?"))
-    return "+".join(parts) or "unknown"
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    for attempt in range(attempts):
+        if attempt:
+            time.sleep(wait_s)
+        try:
+            data = yaml.load(lock.read_text(), Loader=loader)
+        except (OSError, yaml.YAMLError):
+            continue
+        stages = data.get("stages") if isinstance(data, dict) else None
+        if not isinstance(stages, dict) or not all(s in stages for s in wanted):
+            continue
+        parts = [out.get("md5", "?") for s in wanted for out in stages[s].get("outs", [])
+                 if str(out.get("path", "")).startswith("data/")]
+        return "+".join(parts) or "unknown"
+    return "unknown"
 
 
 def run(cfg: dict[str, Any], progress: bool = True, job=None) -> dict[str, Any]:
