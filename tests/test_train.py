@@ -92,6 +92,17 @@ def test_kill_9_then_resume_equals_uninterrupted(root, tmp_path):
     assert load(last)["seconds"] > killed_seconds
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device (found on the project's GPU run)")
+def test_a_finished_gpu_run_resumes_its_checkpoint(root, tmp_path):
+    """A checkpoint is loaded onto the training device: its CPU RNG state then sits on the GPU, and
+    ``torch.set_rng_state`` refused it ('RNG state must be a torch.ByteTensor') on every resume."""
+    cfg = config(root, "model=vae_lstm", "train.steps=12", "train.eval_every=6", "train.device=cuda",
+                 f"paths.models={tmp_path}")
+    first = run(cfg, progress=False)
+    again = run(cfg, progress=False)
+    assert again["best_step"] == first["best_step"] and again["val/loss"] == first["val/loss"]
+
+
 @pytest.mark.parametrize("override,match", [
     ("train.lr=-0.001", "train.lr must be a positive number"),
     ("train.batch_size=0", "train.batch_size must be a positive integer"),

@@ -374,7 +374,7 @@ class Trainer:
             self.optim.load_state_dict(st["optim"])
         self.start_epoch, self.best, self.bad_epochs = int(st["epoch"]) + 1, float(st["best"]), int(st["bad_epochs"])
         self.history = list(st["history"])
-        torch.set_rng_state(st["rng"])
+        torch.set_rng_state(st["rng"].cpu())   # loaded onto self.device: on a GPU the saved CPU state moved there
         self.run_id = st.get("run_id") or None
         self.done = bool(st.get("done", False))
         self.seconds_before, self._t0 = float(st.get("seconds", 0.0)), time.perf_counter()
