@@ -44,20 +44,30 @@ Choices where the brief is open (and why)
 * **Transitions**: GloGen rolls out chunks of ``t_in`` sparse poses, and the first pose of a chunk
   can jump - at class switches and inside a class alike. Measured as the step into a pose over
   the median of the 10 steps around it (:func:`seam_jumps`; 1 = smooth; over all poses of a
-  bandai1 output: median 0.96, 90th percentile 1.9), default-profile models, no blending:
-  bandai1 ``walk:4s,run:3s,walk-left:3s`` switches 1.8 / 1.4, chunk seams 1.75 on average;
-  ``walk:3s,bow:3s,run:3s,kick:3s`` switches 1.9 / 1.4 / 1.5, seams 1.3; cmu_aclstm (same
-  architecture) switches 3.3 / 3.1, seams 3.9: a visible pop every ``t_in * k / fps`` = 0.83 s.
-  So by default (``glocal.blend_at=seams``; ``switches`` and ``none`` are the other choices) at
-  every chunk start ``q`` the velocity change ``x[q] - 2 x[q-1] + x[q-2]`` is removed and faded
-  back in over ``glocal.blend_poses`` (5) sparse poses with a raised-cosine weight: the pose at
-  the seam continues the previous velocity, later poses converge to GloGen's
-  (:func:`blend_seams`). After it: bandai1 seams 0.85 / 0.86, switches 1.8 / 1.05 and
-  1.1 / 1.3 / 0.9 (walk -> run stays a little above 1: running takes longer steps);
-  cmu_aclstm seams 1.0, switches 1.2 / 0.9. LocGen then fills in-betweens between the blended
-  poses. The ratios before/after are printed and stored in the NPZ (``switch_jump_raw``,
-  ``switch_jump``, ``chunk_jump_raw``, ``chunk_jump``; ``sparse_raw`` / ``sparse`` hold the
-  keyframes before/after, normalised).
+  bandai1 output: median 0.96, 90th percentile 1.9). By default (``glocal.blend_at=seams``;
+  ``switches`` and ``none`` are the other choices) at every chunk start ``q`` the velocity change
+  ``x[q] - 2 x[q-1] + x[q-2]`` is removed and faded back in over ``glocal.blend_poses`` (5) sparse
+  poses with a raised-cosine weight: the pose at the seam continues the previous velocity, later
+  poses converge to GloGen's (:func:`blend_seams`). Measured with the models of ``make run`` at
+  ``566daa5`` (default profile), raw -> blended at seams:
+
+  * cmu_aclstm ``indian:4s,martial:3s,salsa:3s``: switches 2.26 / 1.53 -> 1.18 / 1.05, chunk
+    seams 2.14 -> 0.86 on average (90th percentile 2.94 -> 1.08): the pops are gone;
+  * bandai1 ``walk:3s,bow:3s,run:3s,kick:3s``: switches 0.68 / 1.29 / 1.60 -> 1.29 / 1.45 / 0.98,
+    seams 1.42 -> 1.20;
+  * bandai1 ``walk:4s,run:3s,walk-left:3s``: switches 0.96 / 1.00 -> 1.75 / 1.00, seams
+    1.17 -> 0.91.
+
+  So blending removes real jumps but can roughen a switch that was already smooth: where the
+  motion itself changes speed (walk -> run), the removed "velocity change" was the motion's own,
+  and the pose after the seam lags, then catches up. ``blend_at=switches`` does the same there
+  (0.96 -> 1.49); ``blend_at=none`` keeps GloGen's raw keyframes. Tried and not adopted, because
+  each improved some seams and worsened others: blending only seams whose raw jump is above 1.25,
+  measuring every seam's correction on the raw keyframes, removing the change of acceleration
+  instead of the acceleration, and keeping a correction only where it lowers the jump. LocGen then
+  fills in-betweens between the blended poses. The ratios before/after are printed and stored in
+  the NPZ (``switch_jump_raw``, ``switch_jump``, ``chunk_jump_raw``, ``chunk_jump``; ``sparse_raw``
+  / ``sparse`` hold the keyframes before/after, normalised).
 * **Lengths**: a VAE-LSTM output of ``T`` frames is generated with ``T`` rounded up to the
   pooling factor (4) and cut back; the controls are padded with their last row. Output must
   last at least ``min_seconds`` (10 s).
