@@ -160,6 +160,15 @@ def test_locgen_extra_strides_and_every_one():
     assert loss.item() == 0.0 and torch.equal(m1.predict(b1), b1.pose)
 
 
+def test_locgen_is_validated_on_its_in_betweens_only():
+    """LocGen's selection criterion scores the frames it generates: not the keyframes it copies,
+    not a tail past the last keyframe (issue "Models that learn", item 6)."""
+    m = LocGen(DataSpec(joints=15, dims=2, window=23, every=5), **SMALL)
+    scored = m.scored_frames(23)
+    assert scored.tolist() == [t % 5 != 0 and t <= 20 for t in range(23)]
+    assert int(scored.sum()) == 16
+
+
 @pytest.mark.parametrize("kw, match", [
     (dict(hidden=7), "even"),
     (dict(dropout=-0.1), "dropout"),
