@@ -44,12 +44,13 @@ code, which also uses mean-field visibles), hidden states are sampled in the cha
 padded with its first frame when shorter than ``order``; initial weights N(0, 0.01^2).
 
 Departures from the paper's training (``conf/model/crbm.yaml``, ``crbm_cd15.yaml``, and the crops
-in ``conf/dataset/bandai2_locomotion.yaml: training.model_overrides``), for a budget of about a
-minute per stage on 2 CPU cores where Taylor et al. train for hundreds of epochs:
+in ``conf/dataset/bandai2_locomotion.yaml: training.model_overrides``), for a budget of about 80 s
+per stage on 2 CPU cores where Taylor et al. train for hundreds of epochs:
 
 * learning rate 2e-2 (Taylor: 1e-3; SGD, momentum 0.9 and weight decay 2e-4 kept) after 20 warm-up
-  steps, cosine decay to 5 %; CD-1: 900 steps on 120-frame crops of the 240-frame windows; CD-15
-  (about 4x the cost per frame): 560 steps on 60-frame crops. Measured on the validation split
+  steps, cosine decay to 5 %; CD-1: 2,000 steps on 120-frame crops of the 240-frame windows; CD-15
+  (about 4x the cost per frame): 1,500 steps on 60-frame crops (900 and 560 before: validation
+  ``rel_zv`` 0.22 and 0.25 then, 0.20 and 0.21 now, still falling). Measured on the validation split
   (``val/rel_zv``, :mod:`motionsynth.training.criteria`; zero-velocity = 1): after 600 CD-1 steps lr
   1e-3 reached 0.44, 3e-3 0.32, 1.2e-2 0.26, 2e-2 0.24; SGD with momentum 0.97 (0.23) and Adam at
   3e-3 (0.21) ended a little lower, but their roll-outs diverged on the way (``rel_zv`` 1e12 and

@@ -73,7 +73,8 @@ Choices that are ours, and departures from the reference code
   learning rate of 5e-5 (the discriminators' 2e-4), 1.00-1.07 with the steps scaled by ``1/T``, 0.72-0.82
   with the graph layers bypassed. The discriminators themselves work: against a frozen generator they
   separate real from generated clips within 100 steps. Without the walk, everything else equal, MMD_avg fell to
-  0.58-0.70 from step 600 on (in ``make run``: 0.59-0.81 from step 900, step 1,350 selected). The price:
+  0.58-0.70 from step 600 on (in ``make run`` at 1,500 steps: 0.59-0.81 from step 900; its selected step
+  at today's 3,000 is in the report's Training section). The price:
   only the GRU's state ties one frame's latent to the next, and the generated motion jitters (11 times
   real test data's frame-to-frame acceleration, the report's jitter column).
 * **Node features**: each node ``(t, j)`` carries its joint's ``D`` = 2 coordinates as two input
