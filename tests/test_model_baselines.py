@@ -291,3 +291,29 @@ def test_invalid_inputs():
     with pytest.raises(ValueError, match="labels"):
         LSTM3LR(LOCO, hidden_size=8).generate(torch.zeros(1, 3, 21, 3), torch.zeros(1, 9, 3), None, length=9)
     assert issubclass(ERD, RecurrentBaseline)
+
+
+def test_horizon_power_weights_each_predicted_step_by_h_to_the_minus_p():
+    """The loss with ``horizon_power`` p is sum_h h^-p e_h / sum_h h^-p over the per-step MSEs e_h,
+    recovered from the causal decoder as h L_h - (h-1) L_{h-1} (L_h: plain loss over the first h steps)."""
+    b = synthetic(LOCO, T=20)
+    torch.manual_seed(0)
+    m = Seq2Seq(LOCO, hidden_size=16, seed_frames=8, train_target_len=12)
+    with torch.no_grad():
+        for p in m.parameters():                              # the output layer starts at zero: move it
+            p.normal_(0, 0.1)
+    m.eval()
+    plain = []
+    for h in range(1, 13):
+        m.train_target_len = h
+        plain.append(m.loss(b)[0].item())
+    e = [plain[0]] + [h * plain[h - 1] - (h - 1) * plain[h - 2] for h in range(2, 13)]
+    assert min(e) >= 0 and max(e) > 1.5 * min(e)          # the steps differ, so the weighting matters
+    m.train_target_len = 12
+    for p in (0.0, 0.5, 1.0):
+        m.horizon_power = p
+        w = [h ** -p for h in range(1, 13)]
+        want = sum(wi * ei for wi, ei in zip(w, e)) / sum(w)
+        assert m.loss(b)[0].item() == pytest.approx(want, rel=1e-4)
+    with pytest.raises(ValueError, match="horizon_power"):
+        Seq2Seq(LOCO, hidden_size=8, horizon_power=-1)
