@@ -319,3 +319,49 @@ def test_train_classifier_rejects_bad_inputs(real):
         train_classifier(x, y, None, None, real["C"], epochs=1, lr=0)
     with pytest.raises(ValueError, match="select must be"):
         train_classifier(x, y, None, None, real["C"], epochs=1, select="best")
+
+
+_TRAIN_IN_SUBPROCESS = """
+import sys, numpy as np
+from motionsynth.metrics.recognition import features, train_classifier
+d = np.load(sys.argv[1])
+model, _ = train_classifier(d["x"], d["y"], d["vx"], d["vy"], int(d["C"]), epochs=3, batch_size=16, lr=2e-3,
+                            seed=0, threads=1, dtype=sys.argv[2])
+np.save(sys.argv[3], features(model, d["vx"]))
+"""
+
+
+def test_float64_classifier_holds_on_another_mkl_kernel_path(real, tmp_path):
+    """The generative suite trains its classifier in float64 (``evaluate.generative.dtype``) because a
+    float32 one amplifies a CPU's choice of BLAS kernels into other features. Emulate an AVX2-only
+    machine with ``MKL_ENABLE_INSTRUCTIONS=AVX2``: float32 features move, float64 ones agree to 1e-9."""
+    import os
+    import subprocess
+    import sys
+    (x, y), (vx, vy) = real["train"], real["val"]
+    data = tmp_path / "d.npz"
+    np.savez(data, x=x[::5], y=y[::5], vx=vx, vy=vy, C=real["C"])
+    out = {}
+    for dtype in ("float32", "float64"):
+        for path, extra in (("native", {}), ("avx2", {"MKL_ENABLE_INSTRUCTIONS": "AVX2"})):
+            f = tmp_path / f"{dtype}_{path}.npy"
+            subprocess.run([sys.executable, "-c", _TRAIN_IN_SUBPROCESS, str(data), dtype, str(f)], check=True,
+                           env={**os.environ, **extra})
+            out[dtype, path] = np.load(f)
+    moved32 = np.abs(out["float32", "native"] - out["float32", "avx2"]).max()
+    if moved32 == 0:
+        pytest.skip("this CPU's MKL takes the same kernels with MKL_ENABLE_INSTRUCTIONS=AVX2 (no AVX-512)")
+    moved64 = np.abs(out["float64", "native"] - out["float64", "avx2"]).max()
+    assert moved64 < 1e-9 < moved32, (moved64, moved32)
+
+
+def test_float64_classifier_saves_and_loads_in_float64(real, tmp_path):
+    (x, y), (vx, vy) = real["train"], real["val"]
+    model, _ = train_classifier(x[::20], y[::20], None, None, real["C"], epochs=1, threads=1, dtype="float64")
+    assert all(p.dtype == torch.float64 for p in model.parameters())
+    save_classifier(model, tmp_path / "clf.pt")
+    loaded, _ = load_classifier(tmp_path / "clf.pt")
+    assert all(p.dtype == torch.float64 for p in loaded.parameters())
+    np.testing.assert_array_equal(features(loaded, vx), features(model, vx))
+    with pytest.raises(ValueError, match="dtype"):
+        train_classifier(x[:8], y[:8], None, None, real["C"], epochs=1, dtype="float16")

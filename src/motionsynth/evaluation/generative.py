@@ -73,6 +73,11 @@ multimodality, pairs drawn with replacement as the reference code does).
   the kept weights (the cmu_aclstm classifier peaked at epoch 1 of 20 and trained on for 79 s).
   The TEST split is only used afterwards. Seeded (``cfg.seed``), deterministic for a
   given thread count.
+* Precision (``dtype``, default ``float64``; the reference trains in float32): the classifier
+  is trained and run in float64, so that a retrained classifier gives the same feature space
+  on another CPU (the reasons and the measurements: "Precision" in
+  :mod:`motionsynth.metrics.recognition`). It costs about twice the training time
+  (``h36m``: 33 s -> 66-82 s; ``bandai1``: 7 s -> 12-15 s, on one thread).
 * Threads: the suite runs on ``threads`` torch threads (default 1; ``null``: ``eval.threads``),
   restored afterwards. Its networks are small (GRU 128, batches of 64, the baselines' 128-unit
   roll-outs): a second thread gains little on a quiet machine and costs a lot on a busy one.
@@ -205,6 +210,7 @@ DEFAULTS: dict[str, Any] = {
     "lr": 2.0e-3,
     "max_batches_per_epoch": None,
     "patience": 3,               # stop this many epochs after the best val epoch (None: all epochs)
+    "dtype": "float64",          # the classifier's precision (module docstring: "Precision")
     "val_windows": 512,          # val windows that select the epoch (evenly spaced)
     "windows": None,             # windows per real half; None: eval.max_windows
     "cache_dir": None,           # None: <paths.models>/_classifiers/<ds> (the evaluate stage's output)
@@ -243,6 +249,8 @@ def _options(ctx: EvalContext) -> dict[str, Any]:
             raise ValueError(f"evaluate.generative.{k} must be an integer >= 2 or null, got {o[k]!r}")
     if not (isinstance(o["lr"], (int, float)) and math.isfinite(o["lr"]) and o["lr"] > 0):
         raise ValueError(f"evaluate.generative.lr must be a positive number, got {o['lr']!r}")
+    if o["dtype"] not in ("float32", "float64"):
+        raise ValueError(f"evaluate.generative.dtype must be 'float32' or 'float64', got {o['dtype']!r}")
     if o["windows"] is None:
         o["windows"] = int(ctx.opts.get("max_windows") or 256)
     o["family"] = o["family"] or ctx.dataset_cfg["training"]["family"]
@@ -293,7 +301,7 @@ def get_classifier(ctx: EvalContext, o: dict[str, Any]) -> tuple[rec.ActionClass
         raise ValueError(f"{ctx.name}: no '{fam}' train windows for the action classifier")
     threads = o["threads"]
     settings = {k: o[k] for k in ("family", "frame_step", "epochs", "batch_size", "lr", "max_batches_per_epoch",
-                                  "val_windows", "patience")}
+                                  "val_windows", "patience", "dtype")}
     settings.update(seed=int(ctx.cfg.get("seed", 0)), threads=threads, torch=str(torch.__version__),
                     num_classes=train.num_classes, arch=dict(hidden_size=128, num_layers=2, feature_size=30))
     fp = classifier_fingerprint(ctx, fam, settings)
@@ -315,7 +323,7 @@ def get_classifier(ctx: EvalContext, o: dict[str, Any]) -> tuple[rec.ActionClass
     model, hist = rec.train_classifier(x, y, vx, vy, train.num_classes, epochs=o["epochs"],
                                        batch_size=o["batch_size"], lr=float(o["lr"]), seed=settings["seed"],
                                        threads=threads, max_batches_per_epoch=o["max_batches_per_epoch"],
-                                       patience=o["patience"])
+                                       patience=o["patience"], dtype=o["dtype"])
     sel = next(i for i, r in enumerate(hist) if r.get("selected"))
     meta = {"fingerprint": fp, "settings": settings, "history": hist, "selected_epoch": sel,
             "val_acc": hist[sel].get("val_acc", math.nan), "train_acc": hist[sel]["train_acc"],

@@ -34,6 +34,20 @@ RNG, so the caller's global RNG is untouched) and the batch order of epoch ``e``
 (``numpy.random.default_rng([seed, e]).permutation``); with the same ``threads`` two
 runs give bit-identical weights.
 
+Precision. ``train_classifier(dtype=...)`` trains and runs the classifier in float32 (the
+default here, and the reference's) or float64. Bit-identical weights hold on one machine only:
+another CPU makes MKL take other GEMM kernels (an AVX2-only CPU instead of an AVX-512 one),
+whose float32 rounding differs by about 1e-7, and a few hundred Adam steps, with the epoch
+selection on top, turn that into a visibly different feature space. Emulated on one AVX-512
+machine with ``MKL_ENABLE_INSTRUCTIONS=AVX2``, the float32 classifier of the generative suite
+chose another epoch on two of four datasets, and the FID of Gaussian noise on
+``bandai2_locomotion`` went from 11.3 to 3.8 (25 of the 36 reference values of the four
+datasets stayed within 5 %). In float64 all 36 did: the largest change was 3.4 % (the real-data
+FID of 0.10 on ``bandai2_locomotion``), none above 0.1 % on the other three datasets. The
+features of a small test classifier moved by 9e-16 in float64 against 4.5e-7 in float32
+(``tests/test_metrics_recognition.py``). The weights keep their dtype when saved and loaded;
+inputs stay float32 and are cast per batch.
+
 The metrics
 -----------
 Let ``f(x)`` be the 30-d classifier features of a motion ``x``.
@@ -138,14 +152,17 @@ class ActionClassifier(nn.Module):
 
 
 def save_classifier(model: ActionClassifier, path, **meta: Any) -> None:
-    """Write ``{"hparams", "state_dict", "meta"}`` to ``path`` (reload with :func:`load_classifier`)."""
+    """Write ``{"hparams", "state_dict", "meta"}`` to ``path`` (reload with :func:`load_classifier`);
+    the weights keep their dtype."""
     torch.save({"hparams": model.hparams, "state_dict": model.state_dict(), "meta": meta}, path)
 
 
 def load_classifier(path) -> tuple[ActionClassifier, dict]:
-    """The classifier saved by :func:`save_classifier`, in eval mode, and its ``meta`` dict."""
+    """The classifier saved by :func:`save_classifier`, in eval mode and in the dtype it was saved
+    in, and its ``meta`` dict."""
     blob = torch.load(path, map_location="cpu", weights_only=True)
     model = ActionClassifier(**blob["hparams"])
+    model.to(next(iter(blob["state_dict"].values())).dtype)
     model.load_state_dict(blob["state_dict"])
     return model.eval(), blob.get("meta", {})
 
@@ -238,11 +255,11 @@ def _check_count(v: Any, name: str, minimum: int = 1) -> int:
 def _forward_batched(model: ActionClassifier, x: np.ndarray, fn, batch_size: int) -> np.ndarray:
     model_was_training = model.training
     model.eval()
-    device = next(model.parameters()).device
+    p = next(model.parameters())
     outs = []
     with torch.no_grad():
         for s in range(0, len(x), batch_size):
-            outs.append(fn(torch.from_numpy(x[s:s + batch_size]).to(device)).cpu())
+            outs.append(fn(torch.from_numpy(x[s:s + batch_size]).to(p.device, p.dtype)).cpu())
     model.train(model_was_training)
     return torch.cat(outs).numpy()
 
@@ -289,7 +306,7 @@ def train_classifier(train_x: Any, train_y: Any, val_x: Any, val_y: Any, num_cla
                      batch_size: int = 64, lr: float = 1e-3, seed: int = 0, threads: int | None = 1,
                      hidden_size: int = 128, num_layers: int = 2, feature_size: int = 30, clip: float = 1.0,
                      max_batches_per_epoch: int | None = None, select: str = "val_acc", device: str = "cpu",
-                     patience: int | None = None,
+                     patience: int | None = None, dtype: str = "float32",
                      on_epoch: Callable[[dict, ActionClassifier], None] | None = None,
                      progress: bool = False) -> tuple[ActionClassifier, list[dict]]:
     """Train an :class:`ActionClassifier` on ``train_x`` ``[N, T, F]`` float32 with labels
@@ -304,7 +321,9 @@ def train_classifier(train_x: Any, train_y: Any, val_x: Any, val_y: Any, num_cla
     from the validation split, never the test split, which is reserved for :func:`accuracy`
     afterwards. ``patience`` (``None``: off) stops training once that many epochs in a row have not
     improved the selection key (with val data and ``select`` other than ``"last"``): the epochs after
-    the selected one change nothing that is returned. ``threads`` sets ``torch.set_num_threads`` for the call (restored after;
+    the selected one change nothing that is returned. ``dtype`` (``"float32"`` or ``"float64"``) is the
+    precision of the weights and of every computation; inputs stay float32 and are cast per batch
+    (float64: see "Precision" in the module docstring). ``threads`` sets ``torch.set_num_threads`` for the call (restored after;
     ``None`` leaves it). ``on_epoch(row, model)`` is called after each epoch (logging; it
     must not change the model). Returns ``(model in eval mode, history)``, history one dict
     per epoch: ``epoch, train_loss, train_acc`` (running, over the epoch's batches),
@@ -313,6 +332,9 @@ def train_classifier(train_x: Any, train_y: Any, val_x: Any, val_y: Any, num_cla
     """
     if select not in ("val_acc", "val_loss", "last"):
         raise ValueError(f"select must be 'val_acc', 'val_loss' or 'last'; got {select!r}")
+    if dtype not in ("float32", "float64"):
+        raise ValueError(f"dtype must be 'float32' or 'float64'; got {dtype!r}")
+    tdtype = getattr(torch, dtype)
     num_classes = _check_count(num_classes, "num_classes", 2)
     epochs = _check_count(epochs, "epochs")
     batch_size = _check_count(batch_size, "batch_size")
@@ -338,7 +360,8 @@ def train_classifier(train_x: Any, train_y: Any, val_x: Any, val_y: Any, num_cla
     try:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
-            model = ActionClassifier(x.shape[2], num_classes, hidden_size, num_layers, feature_size).to(device)
+            model = ActionClassifier(x.shape[2], num_classes, hidden_size, num_layers, feature_size)
+        model.to(device, tdtype)     # initialised in float32 (the same draws for either dtype), then cast
         opt = torch.optim.Adam(model.parameters(), lr=lr)
         loss_fn = nn.CrossEntropyLoss()
         history: list[dict] = []
@@ -350,7 +373,7 @@ def train_classifier(train_x: Any, train_y: Any, val_x: Any, val_y: Any, num_cla
             batches = [order[s:s + batch_size] for s in range(0, len(x), batch_size)][:max_batches_per_epoch]
             tot_loss, tot_right, seen = 0.0, 0, 0
             for b in batches:
-                xb, yb = torch.from_numpy(x[b]).to(device), torch.from_numpy(y[b]).to(device)
+                xb, yb = torch.from_numpy(x[b]).to(device, tdtype), torch.from_numpy(y[b]).to(device)
                 logits = model(xb)
                 loss = loss_fn(logits, yb)
                 opt.zero_grad()
