@@ -2,9 +2,14 @@
 with ``--retrain``, its training first) with a forced other CPU code path, then compares every value of
 every ``reports/eval/<ds>/results.csv`` with the committed one.
 
-    python bench/stability.py                                   # evaluate again with oneDNN on AVX2 kernels
+    python bench/stability.py                  # evaluate again on AVX2 kernels (MKL and oneDNN)
     python bench/stability.py --env ONEDNN_MAX_CPU_ISA=AVX2 --threads 1
-    python bench/stability.py --retrain                         # train every stage again too (about an hour)
+    python bench/stability.py --retrain        # train every stage again too, two at a time (about an hour)
+
+The default other path is what an AVX2-only CPU takes: ``MKL_ENABLE_INSTRUCTIONS=AVX2`` (MKL runs the
+GEMMs of every linear layer, LSTM and GRU), ``ONEDNN_MAX_CPU_ISA=AVX2`` (oneDNN runs only the
+convolutions, i.e. SA-GCN's) and ``ATEN_CPU_CAPABILITY=avx2`` (PyTorch's own vectorised element-wise
+and reduction kernels). oneDNN alone leaves every recurrent model's arithmetic bit-identical.
 
 Bands (issue "Models that learn"): a deterministic value (``std`` empty: one value) must stay within
 ``--rel`` (5 %) of the committed one; a stochastic one (mean +- std over seeds) within ``--sigmas`` (2)
@@ -28,6 +33,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 import pandas as pd
@@ -35,8 +41,13 @@ import yaml
 from _util import ROOT, emit
 
 
+#: the kernels an AVX2-only CPU takes (module docstring)
+AVX2_ONLY = ["MKL_ENABLE_INSTRUCTIONS=AVX2", "ONEDNN_MAX_CPU_ISA=AVX2", "ATEN_CPU_CAPABILITY=avx2"]
+
+
 def stage(script: str, overrides: list[str], env: dict, log: Path) -> float:
     t0 = time.perf_counter()
+    log.parent.mkdir(parents=True, exist_ok=True)
     with open(log, "a") as f:
         r = subprocess.run([sys.executable, str(ROOT / "pipelines" / script), *overrides], cwd=ROOT, env=env,
                            stdout=f, stderr=subprocess.STDOUT)
@@ -62,15 +73,18 @@ def compare(ref: pd.DataFrame, new: pd.DataFrame, rel: float, sigmas: float) -> 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--env", action="append", default=None, help="KEY=VALUE for the rerun (default "
-                    "ONEDNN_MAX_CPU_ISA=AVX2)")
+                    f"{' '.join(AVX2_ONLY)})")
     ap.add_argument("--threads", type=int, default=None, help="torch threads of the rerun (train and eval)")
     ap.add_argument("--retrain", action="store_true", help="train every train@ stage again first")
+    ap.add_argument("--jobs", type=int, default=2, help="training stages at a time with --retrain (one "
+                    "thread each unless --threads; the longest committed stages start first)")
     ap.add_argument("--rel", type=float, default=0.05)
     ap.add_argument("--sigmas", type=float, default=2.0)
     ap.add_argument("--work", default=None)
     args = ap.parse_args()
+    t_start = time.perf_counter()
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
-    extra = dict(e.split("=", 1) for e in (args.env or ["ONEDNN_MAX_CPU_ISA=AVX2"]))
+    extra = dict(e.split("=", 1) for e in (args.env or AVX2_ONLY))
     env = {**os.environ, "PROGRESS": "0", **extra}
     work = Path(args.work or tempfile.mkdtemp(prefix="stability-"))
     (work / "reports").mkdir(parents=True, exist_ok=True)
@@ -82,12 +96,27 @@ def main() -> None:
     timings = {}
     if args.retrain:
         models = work / "models"
-        t = [f"train.threads={args.threads}"] if args.threads else []
-        for key, r in params["train_runs"].items():
+        threads_each = args.threads or (1 if args.jobs > 1 else None)
+        t = [f"train.threads={threads_each}"] if threads_each else []
+
+        def committed_seconds(r: dict) -> float:       # longest first packs the stages best
+            f = ROOT / "reports" / "metrics" / "train" / r["dataset"] / f"{r['name']}.json"
+            return float(json.loads(f.read_text()).get("seconds", 0)) if f.exists() else 0.0
+
+        def train(item: tuple[str, dict]) -> tuple[str, float]:
+            key, r = item
             seed = [f"seed={r['seed']}"] if "seed" in r else []
-            timings[key] = stage("train.py", [f"dataset={r['dataset']}", f"model={r['model']}",
-                                              f"variant={r['variant']}", f"run_name={r['name']}",
-                                              f"paths.models={models}", *seed, *t, *common], env, log)
+            return key, stage("train.py", [f"dataset={r['dataset']}", f"model={r['model']}",
+                                           f"variant={r['variant']}", f"run_name={r['name']}",
+                                           f"paths.models={models}", *seed, *t, *common], env,
+                              work / "logs" / f"train_{key}.txt")
+
+        todo = sorted(params["train_runs"].items(), key=lambda kv: -committed_seconds(kv[1]))
+        with ThreadPoolExecutor(max(1, args.jobs)) as pool:
+            for fut in as_completed([pool.submit(train, item) for item in todo]):
+                key, sec = fut.result()
+                timings[key] = sec
+                print(f"retrained {key} in {sec:.0f} s ({len(timings)} of {len(todo)})", file=sys.stderr, flush=True)
     elif not models.exists():
         raise SystemExit("no trained models here: run `make run` (or pass --retrain)")
     rows = []
@@ -110,7 +139,8 @@ def main() -> None:
     allm.to_csv(work / "comparison.csv", index=False)
     emit("stability_total", float(allm["ok"].mean()), "share in band", 0.97, values=int(len(allm)),
          in_band=int(allm["ok"].sum()), env=extra, threads=args.threads, retrain=args.retrain,
-         seconds=round(sum(timings.values()), 1), comparison=str(work / "comparison.csv"))
+         seconds=round(sum(timings.values()), 1), wall_seconds=round(time.perf_counter() - t_start, 1),
+         comparison=str(work / "comparison.csv"))
 
 
 if __name__ == "__main__":
