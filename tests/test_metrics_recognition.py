@@ -3,6 +3,10 @@ hand-checkable point sets, input validation, and the action classifier learning 
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import torch
@@ -335,9 +339,6 @@ def test_float64_classifier_holds_on_another_mkl_kernel_path(real, tmp_path):
     """The generative suite trains its classifier in float64 (``evaluate.generative.dtype``) because a
     float32 one amplifies a CPU's choice of BLAS kernels into other features. Emulate an AVX2-only
     machine with ``MKL_ENABLE_INSTRUCTIONS=AVX2``: float32 features move, float64 ones agree to 1e-9."""
-    import os
-    import subprocess
-    import sys
     (x, y), (vx, vy) = real["train"], real["val"]
     data = tmp_path / "d.npz"
     np.savez(data, x=x[::5], y=y[::5], vx=vx, vy=vy, C=real["C"])

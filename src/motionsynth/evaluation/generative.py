@@ -249,8 +249,8 @@ def _options(ctx: EvalContext) -> dict[str, Any]:
             raise ValueError(f"evaluate.generative.{k} must be an integer >= 2 or null, got {o[k]!r}")
     if not (isinstance(o["lr"], (int, float)) and math.isfinite(o["lr"]) and o["lr"] > 0):
         raise ValueError(f"evaluate.generative.lr must be a positive number, got {o['lr']!r}")
-    if o["dtype"] not in ("float32", "float64"):
-        raise ValueError(f"evaluate.generative.dtype must be 'float32' or 'float64', got {o['dtype']!r}")
+    if o["dtype"] not in rec.DTYPES:
+        raise ValueError(f"evaluate.generative.dtype must be one of {rec.DTYPES}, got {o['dtype']!r}")
     if o["windows"] is None:
         o["windows"] = int(ctx.opts.get("max_windows") or 256)
     o["family"] = o["family"] or ctx.dataset_cfg["training"]["family"]

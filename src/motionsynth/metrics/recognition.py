@@ -107,12 +107,14 @@ from torch import Tensor, nn
 __all__ = [
     "ActionClassifier", "train_classifier", "features", "predict", "accuracy", "recognition_accuracy",
     "confusion_matrix", "fid", "frechet_distance", "feature_stats", "diversity", "multimodality",
-    "multimodality_per_class", "generative_metrics", "save_classifier", "load_classifier", "window_arrays",
+    "multimodality_per_class", "generative_metrics", "DTYPES", "save_classifier", "load_classifier", "window_arrays",
 ]
 
 #: Action2Motion's sample counts: pairs for diversity (S_d) and per class for multimodality (S_l)
 DIVERSITY_PAIRS = 200
 MULTIMODALITY_PAIRS = 20
+#: the precisions the classifier trains and runs in (module docstring: "Precision")
+DTYPES = ("float32", "float64")
 
 
 # --------------------------------------------------------------------------- the classifier
@@ -332,8 +334,8 @@ def train_classifier(train_x: Any, train_y: Any, val_x: Any, val_y: Any, num_cla
     """
     if select not in ("val_acc", "val_loss", "last"):
         raise ValueError(f"select must be 'val_acc', 'val_loss' or 'last'; got {select!r}")
-    if dtype not in ("float32", "float64"):
-        raise ValueError(f"dtype must be 'float32' or 'float64'; got {dtype!r}")
+    if dtype not in DTYPES:
+        raise ValueError(f"dtype must be one of {DTYPES}; got {dtype!r}")
     tdtype = getattr(torch, dtype)
     num_classes = _check_count(num_classes, "num_classes", 2)
     epochs = _check_count(epochs, "epochs")
