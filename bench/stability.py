@@ -5,6 +5,7 @@ every ``reports/eval/<ds>/results.csv`` with the committed one.
     python bench/stability.py                  # evaluate again on AVX2 kernels (MKL and oneDNN)
     python bench/stability.py --env ONEDNN_MAX_CPU_ISA=AVX2 --threads 1
     python bench/stability.py --retrain        # train every stage again too, two at a time (about an hour)
+    python bench/stability.py --retrain --datasets cmu_aclstm   # one dataset's stages (about 15 min)
 
 The default other path is what an AVX2-only CPU takes: ``MKL_ENABLE_INSTRUCTIONS=AVX2`` (MKL runs the
 GEMMs of every linear layer, LSTM and GRU), ``ONEDNN_MAX_CPU_ISA=AVX2`` (oneDNN runs only the
@@ -78,12 +79,17 @@ def main() -> None:
     ap.add_argument("--retrain", action="store_true", help="train every train@ stage again first")
     ap.add_argument("--jobs", type=int, default=2, help="training stages at a time with --retrain (one "
                     "thread each unless --threads; the longest committed stages start first)")
+    ap.add_argument("--datasets", nargs="+", default=None, help="only these datasets (their training stages and evaluation; default every dataset of params.yaml)")
     ap.add_argument("--rel", type=float, default=0.05)
     ap.add_argument("--sigmas", type=float, default=2.0)
     ap.add_argument("--work", default=None)
     args = ap.parse_args()
     t_start = time.perf_counter()
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    datasets = list(args.datasets or params["evaluate"])
+    unknown = sorted(set(datasets) - set(params["evaluate"]))
+    if unknown:
+        raise SystemExit(f"--datasets: unknown {unknown}; params.yaml evaluates {list(params['evaluate'])}")
     extra = dict(e.split("=", 1) for e in (args.env or AVX2_ONLY))
     env = {**os.environ, "PROGRESS": "0", **extra}
     work = Path(args.work or tempfile.mkdtemp(prefix="stability-"))
@@ -111,7 +117,8 @@ def main() -> None:
                                            f"paths.models={models}", *seed, *t, *common], env,
                               work / "logs" / f"train_{key}.txt")
 
-        todo = sorted(params["train_runs"].items(), key=lambda kv: -committed_seconds(kv[1]))
+        runs = {k: r for k, r in params["train_runs"].items() if r["dataset"] in datasets}
+        todo = sorted(runs.items(), key=lambda kv: -committed_seconds(kv[1]))
         with ThreadPoolExecutor(max(1, args.jobs)) as pool:
             for fut in as_completed([pool.submit(train, item) for item in todo]):
                 key, sec = fut.result()
@@ -120,7 +127,7 @@ def main() -> None:
     elif not models.exists():
         raise SystemExit("no trained models here: run `make run` (or pass --retrain)")
     rows = []
-    for ds in params["evaluate"]:
+    for ds in datasets:
         # the classifier cache (an evaluate output) goes to the scratch copy: the repository's stays untouched
         over = [f"dataset={ds}", f"paths.models={models}",
                 f"++dataset.evaluate.generative.cache_dir={work}/classifiers/{ds}", *threads, *common]
