@@ -102,3 +102,26 @@ def test_a_freed_slot_is_refilled_before_the_finished_stage_is_committed(project
     assert starts[1] < ends[0], out
     st = json.loads(sh([sys.executable, "-m", "dvc", "status", "--json", "slow_a", "slow_c"], root, env).stdout)
     assert st == {}, st
+
+
+def test_a_missing_data_source_fails_in_one_line_and_skips_only_its_downstream(project):
+    """A ``.dvc`` file whose data is not in the workspace (no ``dvc pull`` yet): the run names the
+    file and the fix, the stages that read it are skipped, and the others run."""
+    root, env = project
+    (root / "raw.txt").write_text("x")
+    sh([sys.executable, "-m", "dvc", "add", "-q", "raw.txt"], root, env)
+    with open(root / "dvc.yaml", "a") as f:
+        f.write("  reads_raw:\n    cmd: python -c \"open('e.json', 'w').write('1')\"\n"
+                "    deps: [raw.txt]\n    outs: [e.json]\n")
+    (root / "raw.txt").unlink()
+    r = sh([sys.executable, "-m", "motionsynth.repro", "-j", "2", "raw.txt.dvc", "reads_raw", "slow_c"],
+           root, env, check=False)
+    out = r.stdout + r.stderr
+    assert r.returncode == 1 and "Traceback" not in out, out
+    assert "ERROR: data source 'raw.txt.dvc': missing data 'source': raw.txt (`dvc pull` fetches it" in out, out
+    assert "skipping 'reads_raw': an upstream stage failed" in out
+    assert (root / "c.json").exists() and not (root / "e.json").exists()
+    # with the file back (dvc checkout from the cache), the source verifies and its stage runs
+    sh([sys.executable, "-m", "dvc", "checkout", "raw.txt.dvc"], root, env)
+    r = sh([sys.executable, "-m", "motionsynth.repro", "-j", "2", "reads_raw"], root, env)
+    assert (root / "e.json").read_text() == "1", r.stdout

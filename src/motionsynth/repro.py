@@ -99,6 +99,9 @@ class Runner:
             log(f"Stage '{st.addressing}' didn't change, skipping")
             self.done.add(st)
             return
+        if not st.cmd:  # a data source (a .dvc file): nothing to run; DVC checks its file and re-hashes it
+            self.verify_source(st)
+            return
         cmd = " && ".join(st.cmd) if isinstance(st.cmd, list) else st.cmd
         log(f"Running stage '{st.addressing}' ({len(self.running) + 1} running): {cmd}")
         if self.dry:
@@ -118,6 +121,22 @@ class Runner:
         pt = threading.Thread(target=pump, args=(proc.stdout, st.addressing), daemon=True)
         pt.start()
         self.running[st] = (proc, time.perf_counter(), pt)
+
+    def verify_source(self, st) -> None:
+        """What ``dvc repro`` does with a changed data source: its file must be there (else the stage
+        fails with one line, and its downstream stages are skipped); a changed file is hashed anew."""
+        log(f"Verifying data source '{st.addressing}'")
+        if self.dry:
+            self.done.add(st)
+            return
+        try:
+            st.run()
+            st.dump()
+        except Exception as e:  # dvc's MissingDataSource and the like: one line, the run goes on
+            self.failed.add(st)
+            log(f"ERROR: data source '{st.addressing}': {e} (`dvc pull` fetches it; `make run` does)")
+            return
+        self.done.add(st)
 
     def finish(self, st, t0: float) -> None:
         """What ``dvc repro`` does after a stage's command: save the outputs, commit them, write dvc.lock."""
