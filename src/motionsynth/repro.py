@@ -99,13 +99,13 @@ class Runner:
             log(f"Stage '{st.addressing}' didn't change, skipping")
             self.done.add(st)
             return
-        if not st.cmd:  # a data source (a .dvc file): nothing to run; DVC checks its file and re-hashes it
-            self.verify_source(st)
-            return
         cmd = " && ".join(st.cmd) if isinstance(st.cmd, list) else st.cmd
-        log(f"Running stage '{st.addressing}' ({len(self.running) + 1} running): {cmd}")
+        log(f"Running stage '{st.addressing}' ({len(self.running) + 1} running): {cmd or 'verify the data source'}")
         if self.dry:
             self.done.add(st)
+            return
+        if not cmd:  # a data source (a .dvc file): nothing to run; DVC checks its file and re-hashes it
+            self.verify_source(st)
             return
         st.remove_outs(ignore_remove=False, force=False)  # persistent outs stay (a killed run resumes)
         if not self.force:
@@ -125,18 +125,18 @@ class Runner:
     def verify_source(self, st) -> None:
         """What ``dvc repro`` does with a changed data source: its file must be there (else the stage
         fails with one line, and its downstream stages are skipped); a changed file is hashed anew."""
-        log(f"Verifying data source '{st.addressing}'")
-        if self.dry:
-            self.done.add(st)
-            return
         try:
             st.run()
             st.dump()
         except Exception as e:  # dvc's MissingDataSource and the like: one line, the run goes on
-            self.failed.add(st)
-            log(f"ERROR: data source '{st.addressing}': {e} (`dvc pull` fetches it; `make run` does)")
+            self.fail(st, f"data source '{st.addressing}': {e} (`dvc pull` fetches it; `make run` does)")
             return
         self.done.add(st)
+
+    def fail(self, st, why: str) -> None:
+        """A stage that failed: one line; the stages downstream of it are skipped, the others go on."""
+        self.failed.add(st)
+        log(f"ERROR: {why}; its downstream stages will be skipped")
 
     def finish(self, st, t0: float) -> None:
         """What ``dvc repro`` does after a stage's command: save the outputs, commit them, write dvc.lock."""
@@ -161,9 +161,7 @@ class Runner:
                 ended.append((st, t0))
                 self.ending.add(st)
             else:
-                self.failed.add(st)
-                log(f"ERROR: stage '{st.addressing}' failed (exit status {proc.returncode}); "
-                    "its downstream stages will be skipped")
+                self.fail(st, f"stage '{st.addressing}' failed (exit status {proc.returncode})")
         if not ended:
             return
         self.fill()
