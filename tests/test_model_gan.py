@@ -138,6 +138,42 @@ def test_validation_selects_on_an_mmd_of_the_validation_split(root, tmp_path):
     assert tr.cfg.monitor == "val/mmd_motion"
 
 
+def test_generator_average_follows_the_trained_generator_and_samples_in_eval_mode(root, tmp_path):
+    """The generator average (models/adversarial.py): no player trains it, the trainer folds the generator's
+    weights in after every step by the documented recursion, and eval mode samples from it."""
+    tr = _trainer(root, tmp_path, "+model_args.average_decay=0.5")
+    m = tr.model
+    avg, gen = m.generator_average, m.generator
+    assert not any(p.requires_grad for p in avg.parameters())
+    trained = {id(p) for ps in tr.optims.values() for grp in ps.param_groups for p in grp["params"]}
+    assert not any(id(p) in trained for p in avg.parameters())
+    expect = [p.detach().clone() for p in gen.parameters()]             # the average starts as the generator
+    torch.manual_seed(0)
+    for g in range(3):
+        tr._adversarial_step(tr.train_data.batch(np.arange(8)), 0, g)
+        beta = min(0.5, (1 + g) / (10 + g))                             # 0.1, 0.18, 0.25: the early ramp
+        expect = [beta * a + (1 - beta) * w.detach() for a, w in zip(expect, gen.parameters())]
+    assert int(m.average_updates) == 3
+    assert all(torch.allclose(a, e, atol=1e-7) for a, e in zip(avg.parameters(), expect))
+    assert not all(torch.equal(a, w) for a, w in zip(avg.parameters(), gen.parameters()))
+    labels = torch.tensor([0, 1])
+    m.eval()
+    torch.manual_seed(1)
+    x = m.sample(labels, 50)
+    torch.manual_seed(1)
+    assert torch.equal(x, avg(m.one_hot(labels), 50))                  # eval mode: the average samples
+    m.train()
+    torch.manual_seed(1)
+    y = m.sample(labels, 50)
+    torch.manual_seed(1)
+    assert torch.equal(y, gen(m.one_hot(labels), 50))                  # training: the generator plays
+    assert any(k.startswith("generator_average.") for k in m.state_dict())   # kept in every checkpoint
+    off = _trainer(root, tmp_path, "+model_args.average_decay=0.0").model    # decay 0 keeps none
+    assert not hasattr(off, "generator_average") and not any("average" in k for k in off.state_dict())
+    with pytest.raises(ValueError, match="average_decay must be a number in"):
+        SAGCN(spec(), **{**SMOKE, "average_decay": 1.0})
+
+
 def test_rerun_is_bitwise_identical_and_resume_equals_uninterrupted(root, tmp_path, monkeypatch):
     args = ("train.steps=6", "train.eval_every=2", "train.patience=100")
     a = run(compose_cfg(root, DS, "model=sagcn", f"paths.models={tmp_path}/a", *args), progress=False)

@@ -41,6 +41,7 @@ holds what SkeletonVAE shares too (clips, generation, selection); :class:`Advers
 
 from __future__ import annotations
 
+import copy
 from typing import Callable
 
 import numpy as np
@@ -179,9 +180,44 @@ class ClipGenerator(MotionModel):
 class AdversarialModel(ClipGenerator):
     """Base of the GAN family (module docstring). Subclasses set ``self.generator`` and
     ``self.discriminators`` (an ``nn.ModuleDict``), or override :meth:`players`, and implement
-    :meth:`sample` and :meth:`adversarial_step`."""
+    :meth:`sample` (from :meth:`sampler`) and :meth:`adversarial_step`.
+
+    **Generator average** (:meth:`keep_average`, ours; no reference of the family has it): the trained
+    generator keeps playing the game, but validation and generation (eval mode) sample from an
+    exponential moving average of its weights (Yazici et al., ICLR 2019, "The unusual effectiveness
+    of averaging in GAN training"), a copy without gradients that is a part of every checkpoint."""
 
     adversarial = True
+    average_decay = 0.0      # ``keep_average``: 0 samples from the trained generator itself
+
+    def keep_average(self, decay: float) -> None:
+        """Sample from an exponential moving average of the generator's weights (class docstring);
+        a subclass calls this once ``self.generator`` is built. ``decay`` 0 keeps none."""
+        if isinstance(decay, bool) or not isinstance(decay, (int, float)) or not 0.0 <= decay < 1.0:
+            raise ValueError(f"average_decay must be a number in [0, 1), got {decay!r}")
+        self.average_decay = float(decay)
+        if self.average_decay > 0:
+            self.generator_average = copy.deepcopy(self.generator).requires_grad_(False)
+            self.register_buffer("average_updates", torch.zeros((), dtype=torch.long))
+
+    @torch.no_grad()
+    def update_average(self) -> None:
+        """Fold the generator's current weights into the average (the trainer calls this after every
+        step): ``a <- beta a + (1 - beta) w`` with ``beta = min(decay, (1 + n) / (10 + n))`` after ``n``
+        earlier updates (the early average is not held at the initial weights); buffers are copied."""
+        if not self.average_decay:
+            return
+        n = int(self.average_updates)
+        beta = min(self.average_decay, (1.0 + n) / (10.0 + n))
+        for a, w in zip(self.generator_average.parameters(), self.generator.parameters()):
+            a.lerp_(w, 1.0 - beta)
+        for a, w in zip(self.generator_average.buffers(), self.generator.buffers()):
+            a.copy_(w)
+        self.average_updates += 1
+
+    def sampler(self) -> nn.Module:
+        """The generator that samples: the trained one while training, the average (if kept) in eval mode."""
+        return self.generator_average if self.average_decay and not self.training else self.generator
 
     def players(self) -> dict[str, list[nn.Parameter]]:
         """Player name -> its parameters; ``generator`` is required (the trainer's learning rate ``lr``;

@@ -31,7 +31,8 @@
   own algorithm in ``model.adversarial_step(batch, update)`` (which losses, how many discriminator
   updates per generator update) and calls ``update(player, loss)``, which checks the loss, back-
   propagates it, clips and steps that player's optimiser at the step's learning rate (``lr``, or
-  ``player_lr[player]`` where given, times the schedule's factor; ``betas`` for Adam). Selection is the model's own
+  ``player_lr[player]`` where given, times the schedule's factor; ``betas`` for Adam). After each step the
+  model folds its generator into its weight average, if it keeps one (``update_average``). Selection is the model's own
   ``validate(data, ...)`` (an MMD on the validation split: GANs have no validation loss).
   Divergence stops the run (:class:`TrainingDiverged`): a non-finite loss of any player, or a
   discriminator logit beyond ``max_logit`` (``logit_absmax`` in the step's logs). Nothing of the
@@ -529,6 +530,7 @@ class Trainer:
             opt.step()
 
         logs = {k: float(v) for k, v in self.model.adversarial_step(batch, update).items()}
+        self.model.update_average()
         missing = {"d_loss", "g_loss"} - set(logs)
         if missing:
             raise KeyError(f"{type(self.model).__name__}.adversarial_step must log {sorted(missing)}")
