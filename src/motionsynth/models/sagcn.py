@@ -83,7 +83,9 @@ Choices that are ours, and departures from the reference code
   criterion swung from round to round by up to 0.4 (on Zen 5, seed 0: ``mmd_motion`` 1.11-1.60 over the
   rounds after the best, chosen at step 1,350 with 1.113), and which round selection kept was a matter of
   luck on each CPU: on an Intel Xeon the same code and seed stayed near the mean pose's level. With it the
-  same training selected step 900 at 0.909, the rounds after it 0.97-1.04 (measurements in the report).
+  same training selected step 900 at 0.909, the rounds after it 0.97-1.04 up to step 1,800, and then it too
+  drifted off (1.14-1.37 up to step 3,000): the average steadies the curve near its best and lowers it, it does
+  not end the drift; nor does it free the selected round from the CPU's kernels (measurements in the report).
 * **Node features**: each node ``(t, j)`` carries its joint's ``D`` = 2 coordinates as two input
   channels. The reference reshapes its ``[B, 50, 30]`` draft to ``[2B, 50, 15]`` with ``view``,
   which puts the first and second halves of each frame's 30 numbers (joints 0-7.5 and 7.5-15, x
