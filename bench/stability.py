@@ -6,6 +6,7 @@ every ``reports/eval/<ds>/results.csv`` with the committed one.
     python bench/stability.py --env ONEDNN_MAX_CPU_ISA=AVX2 --threads 1
     python bench/stability.py --retrain        # train every stage again too, two at a time (about an hour)
     python bench/stability.py --retrain --datasets cmu_aclstm   # one dataset's stages (about 15 min)
+    python bench/stability.py --retrain --datasets h36m --runs h36m-sagcn h36m-sagcn-seed1 ...   # these stages only
 
 The default other path is what an AVX2-only CPU takes: ``MKL_ENABLE_INSTRUCTIONS=AVX2`` (MKL runs the
 GEMMs of every linear layer, LSTM and GRU), ``ONEDNN_MAX_CPU_ISA=AVX2`` (oneDNN runs only the
@@ -20,7 +21,10 @@ repository's models, reports and MLflow store are not touched. Reuses the reposi
 (read only); with ``--retrain`` every ``train@`` stage of ``params.yaml`` is run again into the scratch
 models folder, so the comparison covers training and evaluation together. The action classifier of
 the generative suite is always retrained in the scratch copy (its cache is keyed by the thread count
-and the data, and is not shared).
+and the data, and is not shared). ``--runs`` retrains only the named ``train@`` stages (keys of
+``params.yaml: train_runs``); the datasets' other runs are linked from the repository's models, so the
+comparison isolates those stages' training. ``--resume`` keeps the runs a killed ``--retrain`` left
+finished in ``--work`` (a ``best.pt`` and their metrics file) instead of training them again.
 """
 
 from __future__ import annotations
@@ -80,6 +84,9 @@ def main() -> None:
     ap.add_argument("--retrain", action="store_true", help="train every train@ stage again first")
     ap.add_argument("--jobs", type=int, default=2, help="training stages at a time with --retrain (one "
                     "thread each unless --threads; the longest committed stages start first)")
+    ap.add_argument("--runs", nargs="+", default=None, help="with --retrain: only these train@ stages (keys of "
+                    "params.yaml: train_runs); the datasets' other runs are linked from models/")
+    ap.add_argument("--resume", action="store_true", help="with --retrain: keep runs already finished in --work")
     ap.add_argument("--datasets", nargs="+", choices=params["evaluate"], default=params["evaluate"],
                     help="only these datasets: their training stages and evaluation (default: all)")
     ap.add_argument("--rel", type=float, default=0.05)
@@ -116,7 +123,25 @@ def main() -> None:
                               work / "logs" / f"train_{key}.txt")
 
         runs = {k: r for k, r in params["train_runs"].items() if r["dataset"] in datasets}
-        todo = sorted(runs.items(), key=lambda kv: -committed_seconds(kv[1]))
+        unknown = sorted(set(args.runs or []) - set(runs))
+        if unknown:
+            raise SystemExit(f"--runs {unknown}: not train@ stages of {datasets} in params.yaml (train_runs)")
+        for key, r in runs.items():
+            if args.runs is not None and key not in args.runs:        # not retrained: the committed model
+                link = models / r["dataset"] / r["name"]
+                link.parent.mkdir(parents=True, exist_ok=True)
+                if not link.exists():
+                    link.symlink_to(ROOT / "models" / r["dataset"] / r["name"], target_is_directory=True)
+        runs = {k: r for k, r in runs.items() if args.runs is None or k in args.runs}
+
+        def finished(r: dict) -> bool:
+            return ((models / r["dataset"] / r["name"] / "best.pt").exists()
+                    and (work / "reports" / "metrics" / "train" / r["dataset"] / f"{r['name']}.json").exists())
+
+        todo = sorted(((k, r) for k, r in runs.items() if not (args.resume and finished(r))),
+                      key=lambda kv: -committed_seconds(kv[1]))
+        if len(todo) < len(runs):
+            print(f"--resume: {len(runs) - len(todo)} of {len(runs)} runs already trained in {work}", file=sys.stderr)
         with ThreadPoolExecutor(max(1, args.jobs)) as pool:
             for fut in as_completed([pool.submit(train, item) for item in todo]):
                 key, sec = fut.result()
@@ -144,7 +169,7 @@ def main() -> None:
     allm.to_csv(work / "comparison.csv", index=False)
     emit("stability_total", float(allm["ok"].mean()), "share in band", 0.97, values=int(len(allm)),
          in_band=int(allm["ok"].sum()), env=extra, threads=args.threads, retrain=args.retrain,
-         seconds=round(sum(timings.values()), 1), wall_seconds=round(time.perf_counter() - t_start, 1),
+         runs=args.runs, seconds=round(sum(timings.values()), 1), wall_seconds=round(time.perf_counter() - t_start, 1),
          comparison=str(work / "comparison.csv"))
 
 

@@ -254,3 +254,30 @@ def test_jitter_rows_the_real_reference_and_zero_velocity(built):
         assert math.isfinite(cell(t, method, gen.JITTER_REL).value)
     # the held last seed pose: every second difference from the last seed frame on is exactly 0
     assert cell(t, "Zero-velocity", gen.JITTER).value == 0.0 and cell(t, "Zero-velocity", gen.JITTER_REL).value == 0.0
+
+
+def test_training_seed_replicas_are_one_row_of_mean_and_std_over_the_seeds(built, tmp_path):
+    """GloGen with a ``glogen-seed1`` replica: its two rows (GloGen, GlocalNet) become mean +- std over the two
+    training seeds, each seed's value what it scores alone; the replica is no row of its own."""
+    from motionsynth.training.run import run as train_run
+    r = built["root"]
+    train_run(compose_cfg(r, DS, "model=glogen", "run_name=glogen-seed1", "seed=1", "train.steps=2",
+                          "train.eval_every=2"), progress=False)                 # as build_eval_root trains glogen
+    (r / "models" / DS / "glogen_alone").symlink_to(r / "models" / DS / "glogen-seed1", target_is_directory=True)
+    cfg = _cfg(r, built["cache"])
+    cfg["paths"].update(reports=str(tmp_path / "reports"), samples=str(tmp_path / "samples"))
+    ctx = evaluate(cfg, {"glogen": "glogen", "glogen-seed1": "glogen", "glogen_alone": "glogen", "locgen": "locgen"})
+    t = pd.DataFrame([vars(x) for x in ctx.rows])
+    first = built["table"]
+    assert not t.run.str.contains("seed1").any()
+    for method, run, alone in [("GloGen", "glogen", "glogen_alone"), ("GlocalNet", "glogen+locgen", "glogen_alone+locgen")]:
+        for metric in ["FID", "Recognition accuracy", "Diversity", "Jitter"]:
+            sel = t[(t.method == method) & (t.metric == gen.GROUP) & (t.column == metric)]
+            both, b = sel[sel.run == run].iloc[0], sel[sel.run == alone].iloc[0].value
+            a = cell(first, method, metric).value
+            assert both.value == pytest.approx((a + b) / 2, rel=1e-9, abs=1e-12)
+            assert both["std"] == pytest.approx(abs(a - b) / math.sqrt(2), rel=1e-6, abs=1e-12)
+            assert both.seeds == 2 and "2 training seeds (runs glogen, glogen-seed1)" in both.note
+        assert t[(t.method == method) & (t.column == gen.SPREAD) & (t.run == run)].value.iloc[0] == 0.0
+    a, b = cell(first, "GloGen", "FID").value, t[(t.run == "glogen_alone") & (t.column == "FID")].value.iloc[0]
+    assert a != b                                                                 # the seeds differ

@@ -232,3 +232,30 @@ def test_clips_are_drawn_as_the_reference_loader_does(root):
             assert 300 <= t <= N - 1 - 150
             assert np.array_equal(raw[i], full[t - 30:t + 150:3])                     # 10 seed + 50 real poses
     assert np.isfinite(z).all() and z.shape == (len(a), 60, 15, 2)
+
+
+def test_training_seed_replicas_are_one_row_of_mean_and_std_over_the_seeds(done, root):
+    """A run with a ``<run>-seed<k>`` replica (the h36m GANs' three training seeds) reports one row per
+    column: the mean and std over the training seeds, each seed's value what it scores alone."""
+    from motionsynth.training.run import run as train_run
+    r, _ = root
+    _, first = done
+    train_run(compose_cfg(r, DS, "model=seq2seq", "run_name=seq2seq-seed1", "seed=1", "train.steps=2",
+                          "train.eval_every=2"), progress=False)                 # as build_eval_root trains seq2seq
+    alias = r / "models" / DS / "seq2seq_alone"                                   # the replica as a run of its own
+    alias.symlink_to(r / "models" / DS / "seq2seq-seed1", target_is_directory=True)
+    ctx = EvalContext(config(r), {"seq2seq": "seq2seq", "seq2seq-seed1": "seq2seq", "seq2seq_alone": "seq2seq"})
+    suite.run(ctx)
+    t = pd.DataFrame([vars(x) for x in ctx.rows])
+    assert "seq2seq-seed1" not in set(t.run)                                      # no row of its own
+    for proto in suite.PROTOCOLS:
+        for col in COLS:
+            def pick(table, run):
+                sel = table[(table.protocol == suite.PROTOCOLS[proto]) & (table.run == run) & (table.column == col)]
+                assert len(sel) == 1, (proto, col, run)
+                return sel.iloc[0]
+            both, a, b = pick(t, "seq2seq"), pick(first, "seq2seq").value, pick(t, "seq2seq_alone").value
+            assert a != b
+            assert both.value == pytest.approx((a + b) / 2, rel=1e-12)
+            assert both["std"] == pytest.approx(abs(a - b) / math.sqrt(2), rel=1e-9)
+            assert both.seeds == 2 and "2 training seeds (runs seq2seq, seq2seq-seed1)" in both.note

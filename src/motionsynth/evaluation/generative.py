@@ -143,6 +143,9 @@ the windows of ``A``.
 * Stochastic or deterministic is measured, not declared: each method generates ``stochastic_check_windows`` (4) windows under
   two seeds; identical outputs -> deterministic (one generation, ``ctx.add``, note
   "deterministic"); else one generation per ``ctx.seeds`` (``ctx.add_seeds``, mean +- std).
+* Training-seed replicas (``<run>-seed<k>`` runs: GloGen and Seq2Seq on ``cmu_aclstm``, the three GANs
+  on ``h36m``; :func:`replica_methods`): the row's columns are mean +- std over every (training seed,
+  evaluation seed) pair, as in the other suites; the sample spread is that of the seed-0 run.
   Multimodality of a deterministic model is the Action2Motion quantity (pairs of generated
   windows of one class) and is not 0: its within-class variation comes only from the
   different seed windows it is given; a per-condition multimodality (several samples for one
@@ -412,8 +415,10 @@ def _phys_controls(data, c_norm: torch.Tensor | np.ndarray) -> np.ndarray:
 class Method:
     """A row to generate: ``fn(batch, seed) -> Generated`` on the batch of ``A``."""
 
-    def __init__(self, name: str, run: str, condition: str, fn: Callable[[Any, int], Generated], note: str = ""):
+    def __init__(self, name: str, run: str, condition: str, fn: Callable[[Any, int], Generated], note: str = "",
+                 source: str = ""):
         self.name, self.run, self.condition, self.fn, self.note = name, run, condition, fn, note
+        self.source = source or run       # the trained run whose training-seed replicas stand beside it
 
 
 def _variant_label(ctx: EvalContext, run: str, model_name: str) -> str:
@@ -422,8 +427,9 @@ def _variant_label(ctx: EvalContext, run: str, model_name: str) -> str:
     return f"{label} ({variant.replace('_', ' ')})" if variant else label
 
 
-def methods(ctx: EvalContext, data, T: int) -> list[Method]:
-    """The rows to generate for the trained runs of the dataset (module docstring)."""
+def methods(ctx: EvalContext, data, T: int, runs: list[str] | None = None) -> list[Method]:
+    """The rows to generate for the trained runs of the dataset (module docstring); ``runs`` (default
+    ``ctx.available()``) names other runs, e.g. a run's training-seed replicas, in the same order of rows."""
     from ..models.glogen import GloGen
     from ..models.locgen import LocGen, interpolate
     from ..models.vae_lstm import VAELSTM
@@ -435,8 +441,8 @@ def methods(ctx: EvalContext, data, T: int) -> list[Method]:
                 and not isinstance(model, (GloGen, LocGen, VAELSTM)))
 
     out: list[Method] = []
-    runs = ctx.available()
-    locgen_runs = [r for r in runs if isinstance(ctx.model(r)[0], LocGen)]
+    locgen_runs = [r for r in ctx.available() if isinstance(ctx.model(r)[0], LocGen)]
+    runs = ctx.available() if runs is None else runs
     for run in runs:
         model, _ = ctx.model(run)
         name = _variant_label(ctx, run, ctx.runs[run])
@@ -498,7 +504,7 @@ def methods(ctx: EvalContext, data, T: int) -> list[Method]:
                 base = ctx.label(variant_of(ctx, run) or ctx.runs[run])        # GloGen (L_J) -> GloGen
                 gname = chain_label(name, base) + ("" if len(locgen_runs) == 1 else f" ({lrun})")
                 out.append(Method(gname, f"{run}+{lrun}", f"GloGen from {t} ground-truth sparse seed poses (every "
-                                  f"{k} frames), class label; LocGen in-betweens (M = {k - 1})", glocal))
+                                  f"{k} frames), class label; LocGen in-betweens (M = {k - 1})", glocal, source=run))
 
         elif isinstance(model, LocGen):
             k = int(data.every)
@@ -543,6 +549,21 @@ def methods(ctx: EvalContext, data, T: int) -> list[Method]:
             log.warning("%s: %s (%s) has no dedicated protocol here; generic generate() with %d seed frames",
                         ctx.name, run, type(model).__name__, S)
             out.append(Method(name, run, f"{S} ground-truth seed frames of {T} (generic generate)", generic))
+    return out
+
+
+def replica_methods(ctx: EvalContext, data, T: int, meths: list[Method]) -> dict[int, list[Method]]:
+    """``id(method) -> [the same row of each training-seed replica of its run]`` (``<run>-seed<k>``,
+    :meth:`EvalContext.replicas`), row for row as :func:`methods` builds them for the replica's run."""
+    out: dict[int, list[Method]] = {}
+    for source in dict.fromkeys(m.source for m in meths):
+        mine = [m for m in meths if m.source == source]
+        for r in ctx.replicas(source):
+            theirs = methods(ctx, data, T, runs=[r])
+            if len(theirs) != len(mine):
+                raise AssertionError(f"{ctx.name}: replica {r} gives {len(theirs)} rows, {source} {len(mine)}")
+            for m, rm in zip(mine, theirs):
+                out.setdefault(id(m), []).append(rm)
     return out
 
 
@@ -757,14 +778,17 @@ def _run(ctx: EvalContext, o: dict[str, Any]) -> None:
 
     # ---- the models
     timings = {}
-    for m in methods(ctx, test, T):
+    meths = methods(ctx, test, T)
+    replicas = replica_methods(ctx, test, T, meths)
+    for m in meths:
         t0 = time.perf_counter()
         stochastic = ctx.is_stochastic(lambda b, seed: m.fn(b, seed).z, batch_a, o["stochastic_check_windows"])
         seeds = ctx.seeds if stochastic else [seed0]
+        reps = replicas.get(id(m), [])
         per, per_phys, per_jit = [], [], []
-        for s in seeds:
+        for fn, s in [(f, s) for f in [m.fn, *(r.fn for r in reps)] for s in seeds]:   # training x evaluation seeds
             ctx.torch_seed(s)
-            g = m.fn(batch_a, s)
+            g = fn(batch_a, s)
             if g.z.shape != tuple(batch_a.pose.shape):
                 raise ValueError(f"{m.name}: generated {g.z.shape}, expected {tuple(batch_a.pose.shape)}")
             if not np.isfinite(g.z).all():
@@ -782,6 +806,9 @@ def _run(ctx: EvalContext, o: dict[str, Any]) -> None:
                                      "its multimodality comes from the different seed windows only, a "
                                      "per-condition multimodality would be 0 by construction); ")
         sto = f"stochastic: mean +- std over seeds {list(seeds)}; " if stochastic else ""
+        if reps:
+            sto = (f"mean +- std over {len(reps) + 1} training seeds (runs {m.source}, "
+                   f"{', '.join(r.source for r in reps)}) x {len(seeds)} evaluation seed(s) {list(seeds)}; ")
         kind = ctx.kind(m.run) if m.run in ctx.runs else "model"
         add_row(m.name, per, kind, m.condition, det + sto + count_note, m.run)
         spread, spread_note = 0.0, "deterministic: every draw is the same motion"
@@ -792,7 +819,8 @@ def _run(ctx: EvalContext, o: dict[str, Any]) -> None:
                 draws.append(ctx.physical(test, m.fn(batch_a, seed0 + i).z, spread_root))
             spread = sample_spread(np.stack(draws), root_j, o["spread_from_frame"] - 1)
             spread_note = (f"{o['spread_samples']} draws (seeds {seed0}..{seed0 + o['spread_samples'] - 1}) per "
-                           f"window of half A ({len(ia)} windows, the same conditioning: {m.condition})")
+                           f"window of half A ({len(ia)} windows, the same conditioning: {m.condition})"
+                           + (f"; run {m.source} (training seed 0) only" if reps else ""))
         ctx.add(paper=PAPER, table=TABLE, compare_to=f"{ctx.name} (ours)", metric=GROUP, column=SPREAD,
                 method=m.name, condition=m.condition, value=spread, n=len(ia), kind=kind, run=m.run,
                 key="generative/sample_spread",

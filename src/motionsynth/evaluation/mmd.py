@@ -96,6 +96,9 @@ Calibration rows (``kind="reference"``), per protocol, from real data and no mod
 Stochastic generators (the GAN family, measured by :meth:`EvalContext.is_stochastic`: two seeds, four
 clips) generate once per seed of ``ctx.seeds`` (torch seeded with it before each protocol's batch) and
 report mean +- std over the seeds, like the random calibration rows; deterministic models one value.
+A run with training-seed replicas (``<run>-seed<k>``, :meth:`EvalContext.replicas`; on ``h36m`` the three
+GANs) reports one row: mean +- std over every (training seed, evaluation seed) pair, so its std holds the
+spread of the training itself, which for a GAN is far larger than that of its evaluation seeds.
 
 Random rows are repeated for every seed of ``ctx.seeds`` (numpy ``default_rng([seed, i])``, ``i`` the
 protocol's index; one generator per seed for the 2nd draw, the still poses and the noise, in that order) and
@@ -468,11 +471,16 @@ def run(ctx: EvalContext) -> None:
             note += ("; as the paper's Table 3 row 'Our Method (GloGen)'; the published numbers were scored on the "
                      "train split" if run_name in plain_glogen else f"; {ablation_note(model)}; the paper's Table 2 "
                      "ablation is on NTU RGB+D 2-D, not on this benchmark")
+        reps = ctx.replicas(run_name)                              # training-seed replicas: <run>-seed<k>
+        if reps:
+            note = (f"mean +- std over {len(reps) + 1} training seeds (runs {run_name}, {', '.join(reps)}) x "
+                    f"{len(seeds)} evaluation seeds; each {note}")
         fakes = {proto: [] for proto in PROTOCOLS}
-        for s in seeds:
-            for proto in PROTOCOLS:
-                ctx.torch_seed(s)
-                fakes[proto].append(generate(model, windows[proto][:, :S], lab, S + P, ctx.device)[:, S:S + P])
+        for gen in [model, *(ctx.model(r)[0] for r in reps)]:     # one value per (training seed, evaluation seed)
+            for s in seeds:
+                for proto in PROTOCOLS:
+                    ctx.torch_seed(s)
+                    fakes[proto].append(generate(gen, windows[proto][:, :S], lab, S + P, ctx.device)[:, S:S + P])
         if not all(np.isfinite(f).all() for fs in fakes.values() for f in fs):
             log.warning("%s mmd: run %s generated non-finite poses; its rows are NaN", ctx.name, run_name)
             for proto in PROTOCOLS:
