@@ -92,3 +92,17 @@ def test_every_model_is_trained_on_the_datasets_the_issue_names():
     assert {(ds, m) for ds in ("h36m", "cmu_aclstm") for m in ("glogen_lj", "glogen_lmf")} <= pairs
     # part 2 (issue 14): the action GANs of GlocalNet Table 3, on its H3.6M-2D benchmark
     assert {("h36m", m) for m in ("sagcn", "skeleton_gan", "cskeleton_gan", "skeleton_vae")} <= pairs
+
+
+def test_the_evaluate_stage_depends_on_exactly_the_evaluation_modules_it_runs():
+    """dvc.yaml's evaluate deps name the evaluation package's modules that the stage imports (the package,
+    and every suite a dataset config names, transitively), not the report stage's modules."""
+    stage = yaml.safe_load((REPO / "dvc.yaml").read_text())["stages"]["evaluate"]["do"]
+    declared = {d[len("src/motionsynth/"):-len(".py")] for d in stage["deps"]
+                if d.startswith("src/motionsynth/evaluation/")}
+    suites = set()
+    for f in (REPO / "conf" / "dataset").glob("*.yaml"):
+        suites |= set((yaml.safe_load(f.read_text()).get("evaluate") or {}).get("suites") or [])
+    closure = set().union(*(module_closure(f"evaluation/{m}") for m in {"__init__", *suites}))
+    assert declared == {m for m in closure if m.startswith("evaluation/")}
+    assert "src/motionsynth/evaluation" not in stage["deps"] and "evaluation/report" not in declared
