@@ -123,6 +123,11 @@ class EvalContext:
                 found.append((int(m["seed"]), r))
         return [r for _, r in sorted(found)]
 
+    @staticmethod
+    def seeds_note(runs: list[str]) -> str:
+        """How a row over training seeds names them: ``runs`` = the run, then its replicas (every suite)."""
+        return f"mean +- std over {len(runs)} training seeds (runs {', '.join(runs)})"
+
     def model(self, run: str):
         """``(model, train_windows)`` of a trained run, loaded once, in eval mode on the context's device."""
         if run not in self._models:

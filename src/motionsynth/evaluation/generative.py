@@ -807,8 +807,8 @@ def _run(ctx: EvalContext, o: dict[str, Any]) -> None:
                                      "per-condition multimodality would be 0 by construction); ")
         sto = f"stochastic: mean +- std over seeds {list(seeds)}; " if stochastic else ""
         if reps:
-            sto = (f"mean +- std over {len(reps) + 1} training seeds (runs {m.source}, "
-                   f"{', '.join(r.source for r in reps)}) x {len(seeds)} evaluation seed(s) {list(seeds)}; ")
+            sto = (f"{ctx.seeds_note([m.source, *(r.source for r in reps)])} x {len(seeds)} evaluation seed(s) "
+                   f"{list(seeds)}; ")
         kind = ctx.kind(m.run) if m.run in ctx.runs else "model"
         add_row(m.name, per, kind, m.condition, det + sto + count_note, m.run)
         spread, spread_note = 0.0, "deterministic: every draw is the same motion"

@@ -438,8 +438,7 @@ def run(ctx: EvalContext) -> None:
                else "deterministic")
         note = f"{how}; {note_space}"
         if meth.replicas:
-            note = (f"mean +- std over {len(meth.replicas) + 1} training seeds (runs {meth.run}, "
-                    f"{', '.join(r for r, _ in meth.replicas)}); each {how}; {note_space}")
+            note = f"{ctx.seeds_note([meth.run, *(r for r, _ in meth.replicas)])}; each {how}; {note_space}"
         elif stochastic:
             note = f"mean +- std over {len(values)} evaluation seeds; {note}"
         if meth.note:

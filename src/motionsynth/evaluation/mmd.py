@@ -473,8 +473,7 @@ def run(ctx: EvalContext) -> None:
                      "ablation is on NTU RGB+D 2-D, not on this benchmark")
         reps = ctx.replicas(run_name)                              # training-seed replicas: <run>-seed<k>
         if reps:
-            note = (f"mean +- std over {len(reps) + 1} training seeds (runs {run_name}, {', '.join(reps)}) x "
-                    f"{len(seeds)} evaluation seeds; each {note}")
+            note = f"{ctx.seeds_note([run_name, *reps])} x {len(seeds)} evaluation seeds; each {note}"
         fakes = {proto: [] for proto in PROTOCOLS}
         for gen in [model, *(ctx.model(r)[0] for r in reps)]:     # one value per (training seed, evaluation seed)
             for s in seeds:
