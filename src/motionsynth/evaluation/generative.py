@@ -143,13 +143,13 @@ the windows of ``A``.
 * Stochastic or deterministic is measured, not declared: each method generates ``stochastic_check_windows`` (4) windows under
   two seeds; identical outputs -> deterministic (one generation, ``ctx.add``, note
   "deterministic"); else one generation per ``ctx.seeds`` (``ctx.add_seeds``, mean +- std).
-* Training-seed replicas (``<run>-seed<k>`` runs: GloGen and Seq2Seq on ``cmu_aclstm``, the three GANs
-  on ``h36m``; :func:`replica_methods`): the row's columns are mean +- std over every (training seed,
-  evaluation seed) pair, as in the other suites; the sample spread is that of the seed-0 run.
   Multimodality of a deterministic model is the Action2Motion quantity (pairs of generated
   windows of one class) and is not 0: its within-class variation comes only from the
   different seed windows it is given; a per-condition multimodality (several samples for one
   seed and class) would be 0 by construction, which the note states.
+* Training-seed replicas (``<run>-seed<k>`` runs: GloGen and Seq2Seq on ``cmu_aclstm``, the three GANs
+  on ``h36m``; :func:`replica_methods`): the row's columns are mean +- std over every (training seed,
+  evaluation seed) pair, as in the other suites; the sample spread is that of the seed-0 run.
 
 Physical metrics (3-D data only; :mod:`motionsynth.metrics.physical`, metres)
 -----------------------------------------------------------------------------
@@ -441,8 +441,9 @@ def methods(ctx: EvalContext, data, T: int, runs: list[str] | None = None) -> li
                 and not isinstance(model, (GloGen, LocGen, VAELSTM)))
 
     out: list[Method] = []
-    locgen_runs = [r for r in ctx.available() if isinstance(ctx.model(r)[0], LocGen)]
-    runs = ctx.available() if runs is None else runs
+    trained = ctx.available()
+    locgen_runs = [r for r in trained if isinstance(ctx.model(r)[0], LocGen)]
+    runs = trained if runs is None else runs
     for run in runs:
         model, _ = ctx.model(run)
         name = _variant_label(ctx, run, ctx.runs[run])
