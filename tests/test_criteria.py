@@ -90,3 +90,21 @@ def test_lr_schedule_warms_up_then_decays():
     assert f[0] == pytest.approx(0.1) and f[9] == pytest.approx(1.0)
     assert all(a >= b for a, b in zip(f[10:], f[11:])) and f[-1] == pytest.approx(0.1, abs=1e-3)
     assert lr_factor(50, 110, TrainConfig(warmup_steps=0)) == 1.0                 # constant
+
+
+def test_budget_resolution_dataset_then_variant_then_command_line():
+    from motionsynth.training.run import train_config
+    model = {"train": {"lr": 1e-3, "batch_size": 32},
+             "schedule": {"default": {"steps": 100, "eval_every": 10, "patience": 3,
+                                      "datasets": {"d": {"steps": 400, "eval_every": 40,
+                                                         "variants": {"given": {"steps": 200}}}}}}}
+
+    def cfg(ds, variant, train=None):
+        return {"model": model, "profile_name": "default", "dataset": {"name": ds},
+                "variant_name": variant, "train": dict(train or {}), "seed": 0}
+
+    assert (train_config(cfg("other", None)).steps, train_config(cfg("other", "given")).steps) == (100, 100)
+    assert train_config(cfg("d", None)).steps == 400 and train_config(cfg("d", None)).eval_every == 40
+    given = train_config(cfg("d", "given"))
+    assert (given.steps, given.eval_every, given.patience) == (200, 40, 3)   # the variant's entry adds to the dataset's
+    assert train_config(cfg("d", "given", {"steps": 7, "lr": None})).steps == 7   # the command line wins

@@ -68,6 +68,22 @@ def test_graph_product_equals_the_dense_row_normalised_graph():
     torch.testing.assert_close(fact, dense, rtol=1e-5, atol=1e-6)
 
 
+def test_sampling_in_chunks_equals_one_pass_bit_for_bit(monkeypatch):
+    """Without a gradient the graph layers run GRAPH_CHUNK clips at a time (for the cache); every clip's
+    arithmetic must be that of one pass over the whole batch, so results do not depend on the chunking."""
+    import motionsynth.models.sagcn as sagcn
+    m = SAGCN(spec(), **SMOKE).eval()
+    labels = torch.arange(2 * sagcn.GRAPH_CHUNK + 7) % 3
+    with torch.no_grad():
+        torch.manual_seed(1)
+        chunked = m.sample(labels, 30)
+        monkeypatch.setattr(sagcn, "GRAPH_CHUNK", 10 ** 9)
+        torch.manual_seed(1)
+        whole = m.sample(labels, 30)
+    assert chunked.shape == (len(labels), 30, 15, 2)
+    assert torch.equal(chunked, whole)
+
+
 def test_shapes_generation_and_sampling():
     torch.manual_seed(0)
     m = SAGCN(spec(), **SMOKE).eval()

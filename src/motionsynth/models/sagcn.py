@@ -124,6 +124,10 @@ from torch import Tensor, nn
 from .adversarial import AdversarialModel, Update, _count, bce_logits
 from .base import Batch, DataSpec
 
+#: clips per pass through the graph layers when no gradient is recorded (sampling): their ``[N, C, T, J]``
+#: activations then stay in cache; every clip's arithmetic is the same as in one pass (tests: bit for bit)
+GRAPH_CHUNK = 50
+
 
 def skeleton_adjacency(parents: tuple[int, ...] | list[int], joints: int) -> Tensor:
     """Bones as a ``J x J`` 0/1 matrix with self-loops: joint and parent, and, where the parent was not
@@ -244,6 +248,14 @@ class Generator(nn.Module):
         draft = self.to_pose(x2.transpose(1, 2)).transpose(1, 2)                 # [N, T, J*D]
         draft, W = self.attn_pose(draft)
         W = sparse_graph(W, self.top_k)
+        if torch.is_grad_enabled() or N <= GRAPH_CHUNK:
+            return self.refine(draft, W)
+        return torch.cat([self.refine(draft[i:i + GRAPH_CHUNK], W[i:i + GRAPH_CHUNK])
+                          for i in range(0, N, GRAPH_CHUNK)])
+
+    def refine(self, draft: Tensor, W: Tensor) -> Tensor:
+        """The graph layers: draft poses ``[N, T, J*D]`` and sparse frame weights ``[N, T, T]`` -> ``[N, T, J, D]``."""
+        N, T, _ = draft.shape
         h0 = draft.reshape(N, T, self.joints, self.dims).permute(0, 3, 1, 2)     # [N, D, T, J]
         h = self.gc[0](h0, W, self.A)
         h = self.gc[1](h, W, self.A)

@@ -46,16 +46,20 @@ def train_config(cfg: dict[str, Any]) -> TrainConfig:
     """Trainer settings, later entries winning: the model's paper defaults (``model.train``), the
     model's budget for the active profile (``model.schedule.<profile_name>``: optimiser steps,
     validation interval, warm-up and learning-rate schedule that make this model converge under
-    that profile), the dataset's entry in it (``schedule.<profile_name>.datasets.<dataset>``), a
-    profile's budget for every model (``profile_schedule``: the smoke profile's few steps), then
+    that profile), the dataset's entry in it (``schedule.<profile_name>.datasets.<dataset>``), that
+    entry's protocol variant entry (``...datasets.<dataset>.variants.<variant_name>``: one of the
+    dataset's two protocols may need another budget), a profile's budget for every model (``profile_schedule``: the smoke profile's few steps), then
     every non-null ``train`` value (the profile's and the command line's overrides). A budget given
     as ``train.epochs`` (data passes, a validation after each) replaces any ``steps`` and ``eval_every``
     not given under ``train`` too."""
     schedule = dict((cfg["model"].get("schedule") or {}).get(cfg.get("profile_name"), {}) or {})
     per_dataset = schedule.pop("datasets", None) or {}
     ds_name = (cfg.get("dataset") or {}).get("name")
+    ds_entry = dict(per_dataset.get(ds_name) or {})
+    per_variant = ds_entry.pop("variants", None) or {}
     explicit = {k: v for k, v in cfg["train"].items() if v is not None}
-    merged = {**cfg["model"].get("train", {}), **schedule, **(per_dataset.get(ds_name) or {}),
+    merged = {**cfg["model"].get("train", {}), **schedule, **ds_entry,
+              **(per_variant.get(cfg.get("variant_name")) or {}),
               **(cfg.get("profile_schedule") or {}), **explicit}
     if "epochs" in explicit:            # N data passes, validated after each: the schedule's steps do not apply
         merged.update({k: None for k in ("steps", "eval_every") if k not in explicit})
