@@ -125,7 +125,8 @@ from .adversarial import AdversarialModel, Update, _count, bce_logits
 from .base import Batch, DataSpec
 
 #: clips per pass through the graph layers when no gradient is recorded (sampling): their ``[N, C, T, J]``
-#: activations then stay in cache; every clip's arithmetic is the same as in one pass (tests: bit for bit)
+#: activations then stay in cache. Bit for bit the samples of one pass at the test's size; at the default
+#: size the kernels block some products by batch, and `make run`'s SA-GCN values moved by at most 1.2e-9 relative
 GRAPH_CHUNK = 50
 
 
