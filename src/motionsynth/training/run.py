@@ -48,7 +48,8 @@ def train_config(cfg: dict[str, Any]) -> TrainConfig:
     validation interval, warm-up and learning-rate schedule that make this model converge under
     that profile), the dataset's entry in it (``schedule.<profile_name>.datasets.<dataset>``), that
     entry's protocol variant entry (``...datasets.<dataset>.variants.<variant_name>``: one of the
-    dataset's two protocols may need another budget), a profile's budget for every model (``profile_schedule``: the smoke profile's few steps), then
+    dataset's two protocols may need another budget), a profile's budget for every model
+    (``profile_schedule``: the smoke profile's few steps), then
     every non-null ``train`` value (the profile's and the command line's overrides). A budget given
     as ``train.epochs`` (data passes, a validation after each) replaces any ``steps`` and ``eval_every``
     not given under ``train`` too."""
