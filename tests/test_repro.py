@@ -125,3 +125,32 @@ def test_a_missing_data_source_fails_in_one_line_and_skips_only_its_downstream(p
     sh([sys.executable, "-m", "dvc", "checkout", "raw.txt.dvc"], root, env)
     r = sh([sys.executable, "-m", "motionsynth.repro", "-j", "2", "reads_raw"], root, env)
     assert (root / "e.json").read_text() == "1", r.stdout
+
+
+def test_lock_entries_are_written_in_batches_and_before_a_stage_that_may_read_them(project, monkeypatch):
+    """dvc.lock is rewritten once for the finished stages together, not once per stage; a stage whose
+    upstream entries wait in the batch gets them written first (its command reads dvc.lock here)."""
+    from dvc.dvcfile import Lockfile
+
+    from motionsynth import repro
+
+    root, env = project
+    with open(root / "dvc.yaml", "a") as f:
+        f.write("  reads_lock:\n    cmd: python -c \"import yaml; s = yaml.safe_load(open('dvc.lock'))['stages']; "
+                "open('f.json', 'w').write(str(sorted(s)))\"\n    deps: [a.json]\n    outs: [f.json]\n")
+    writes: list[list[str]] = []
+    dump = Lockfile.dump_stages
+
+    def counted(self, stages, **kwargs):
+        writes.append(sorted(s.name for s in stages))
+        return dump(self, stages, **kwargs)
+
+    monkeypatch.setattr(Lockfile, "dump_stages", counted)
+    monkeypatch.chdir(root)
+    monkeypatch.setenv("PATH", env["PATH"])
+    assert repro.main(["-j", "1", "slow_a", "slow_c", "reads_lock"]) == 0
+    assert sorted(sum(writes, [])) == ["reads_lock", "slow_a", "slow_c"], writes
+    assert len(writes) < 3, writes                       # batched: not one rewrite per stage
+    assert "slow_a" in (root / "f.json").read_text()     # written before reads_lock started
+    st = json.loads(sh([sys.executable, "-m", "dvc", "status", "--json"], root, env).stdout)
+    assert set(st) == {"after_a", "broken", "after_broken"}, st

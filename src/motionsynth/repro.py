@@ -12,7 +12,13 @@ plans them) and keeps up to ``-j`` stage commands running. Each stage goes throu
 this process: skipped when ``Stage.changed`` says so (after its upstream stages ran), outputs removed
 (persistent ones kept), the run cache tried, the command run, then ``save``, ``commit`` and the
 ``dvc.lock`` entry that ``dvc repro`` writes. A plain ``dvc repro`` afterwards finds every stage up to
-date. A failed stage is reported and its downstream stages are skipped; the others go on (``dvc repro
+date. The ``dvc.lock`` entries are written in batches (:meth:`Runner.write_lock`): rewriting the whole
+file costs about 2 s of CPU per stage at 91 stages, time taken from the stages that share the cores.
+A batch is written before a stage starts whose upstream stages wait in it (a stage command may read
+``dvc.lock``), every :data:`LOCK_EVERY_S` seconds, and when the run ends, fails or is interrupted. A
+run killed outright loses at most that many seconds of entries; the next run restores those stages
+from DVC's run cache (or runs them again where a stage has uncached outputs). A failed stage is
+reported and its downstream stages are skipped; the others go on (``dvc repro
 --keep-going``); the exit status is 1 then.
 
 Results do not depend on ``-j``: the default profile pins one thread per stage (``train.threads``,
@@ -39,6 +45,7 @@ from motionsynth import threads
 #: per-stage wall seconds of the last run (relative to the repository root); read to order the stages
 TIMES_FILE = Path("reports/stage_times.json")  # outside every stage's deps (reports/metrics is one)
 POLL_S = 0.2  # how often the scheduler looks for a finished stage
+LOCK_EVERY_S = 300.0  # the longest a finished stage's dvc.lock entry waits to be written
 
 
 def log(msg: str) -> None:
@@ -70,6 +77,8 @@ class Runner:
         self.running: dict = {}  # stage -> (process, start time, pump thread)
         self.ending: set = set()  # commands done, DVC bookkeeping not yet
         self.ran: dict[str, float] = {}
+        self.unlocked: list = []  # committed stages whose dvc.lock entries are not written yet
+        self.locked_at = time.perf_counter()
         root = Path(repo.root_dir)
         self.times_path = root / TIMES_FILE
         self.times = json.loads(self.times_path.read_text()) if self.times_path.exists() else {}
@@ -78,6 +87,16 @@ class Runner:
 
     def upstream(self, st) -> list:
         return [u for u in self.graph.successors(st) if u in self.in_plan]
+
+    def ancestors(self, st) -> set:
+        """Every stage upstream of ``st``, direct or not (in the plan or not)."""
+        seen, todo = set(), list(self.graph.successors(st))
+        while todo:
+            u = todo.pop()
+            if u not in seen:
+                seen.add(u)
+                todo.extend(self.graph.successors(u))
+        return seen
 
     def ready(self) -> list:
         out = []
@@ -107,6 +126,8 @@ class Runner:
         if not cmd:  # a data source (a .dvc file): nothing to run; DVC checks its file and re-hashes it
             self.verify_source(st)
             return
+        if self.unlocked and self.ancestors(st) & set(self.unlocked):
+            self.write_lock()  # its command may read its upstream stages' entries (training's dataset hash)
         st.remove_outs(ignore_remove=False, force=False)  # persistent outs stay (a killed run resumes)
         if not self.force:
             try:
@@ -143,9 +164,21 @@ class Runner:
         no_cache_outs = any(not o.use_cache for o in st.outs if not (o.is_metric or o.is_plot))
         st.save(run_cache=not no_cache_outs)
         st.commit()
-        st.dump(update_pipeline=False)
+        self.unlocked.append(st)
         self.ran[st.addressing] = time.perf_counter() - t0
         self.done.add(st)
+        if time.perf_counter() - self.locked_at >= LOCK_EVERY_S:
+            self.write_lock()
+
+    def write_lock(self) -> None:
+        """Write the pending ``dvc.lock`` entries: one rewrite of each lock file for all of them."""
+        by_file: dict = {}
+        for st in self.unlocked:
+            by_file.setdefault(st.dvcfile.path, (st.dvcfile, []))[1].append(st)
+        for dvcfile, stages in by_file.values():
+            dvcfile.dump_stages(stages, update_pipeline=False)
+        self.unlocked.clear()
+        self.locked_at = time.perf_counter()
 
     def reap(self) -> None:
         """Collect the finished commands; refill the freed slots with stages that do not wait on them
@@ -201,6 +234,7 @@ class Runner:
             self.stop()
             raise
         finally:
+            self.write_lock()
             if self.ran and not self.dry:
                 self.times.update({k: round(v, 1) for k, v in self.ran.items()})
                 self.times_path.parent.mkdir(parents=True, exist_ok=True)
