@@ -154,3 +154,29 @@ def test_lock_entries_are_written_in_batches_and_before_a_stage_that_may_read_th
     assert "slow_a" in (root / "f.json").read_text()     # written before reads_lock started
     st = json.loads(sh([sys.executable, "-m", "dvc", "status", "--json"], root, env).stdout)
     assert set(st) == {"after_a", "broken", "after_broken"}, st
+
+
+def test_a_run_killed_before_its_lock_write_is_restored_from_the_run_cache(project, monkeypatch):
+    """The entries a killed run had not written yet: the next run finds those stages changed, and DVC's
+    run cache gives back their outputs without running their commands again (as for make run's stages,
+    which all have dependencies: DVC keeps no run cache for a stage without any)."""
+    from motionsynth import repro
+
+    root, env = project
+    (root / "in.txt").write_text("x")
+    with open(root / "dvc.yaml", "a") as f:
+        f.write("  stamp_in:\n    cmd: python -c \"import time; open('g.json', 'w').write(open('in.txt').read() + "
+                "str(time.time()))\"\n    deps: [in.txt]\n    outs: [g.json]\n")
+    monkeypatch.chdir(root)
+    monkeypatch.setenv("PATH", env["PATH"])
+    monkeypatch.setattr(repro.Runner, "write_lock", lambda self: None)  # killed before any lock write
+    assert repro.main(["-j", "2", "stamp_in"]) == 0
+    first = (root / "g.json").read_text()
+    st = json.loads(sh([sys.executable, "-m", "dvc", "status", "--json", "stamp_in"], root, env).stdout)
+    assert set(st) == {"stamp_in"}, st               # no entry: DVC sees the stage as changed
+    monkeypatch.undo()
+    r = sh([sys.executable, "-m", "motionsynth.repro", "-j", "2", "stamp_in"], root, env)
+    assert "Stage 'stamp_in' is cached: its outputs were checked out" in r.stdout, r.stdout
+    assert (root / "g.json").read_text() == first    # the first run's output, not a new run's
+    st = json.loads(sh([sys.executable, "-m", "dvc", "status", "--json", "stamp_in"], root, env).stdout)
+    assert st == {}, st

@@ -17,8 +17,8 @@ file costs about 2 s of CPU per stage at 91 stages, time taken from the stages t
 A batch is written before a stage starts whose upstream stages wait in it (a stage command may read
 ``dvc.lock``), every :data:`LOCK_EVERY_S` seconds, and when the run ends, fails or is interrupted. A
 run killed outright loses at most that many seconds of entries; the next run restores those stages
-from DVC's run cache (or runs them again where a stage has uncached outputs). A failed stage is
-reported and its downstream stages are skipped; the others go on (``dvc repro
+from DVC's run cache (or runs them again where a stage has uncached outputs or no dependencies).
+A failed stage is reported and its downstream stages are skipped; the others go on (``dvc repro
 --keep-going``); the exit status is 1 then.
 
 Results do not depend on ``-j``: the default profile pins one thread per stage (``train.threads``,
