@@ -180,3 +180,28 @@ def test_a_run_killed_before_its_lock_write_is_restored_from_the_run_cache(proje
     assert (root / "g.json").read_text() == first    # the first run's output, not a new run's
     st = json.loads(sh([sys.executable, "-m", "dvc", "status", "--json", "stamp_in"], root, env).stdout)
     assert st == {}, st
+
+
+def test_a_pending_lock_entry_is_written_while_other_stages_still_run(project, monkeypatch):
+    """An entry waits at most LOCK_EVERY_S, even while no other stage finishes: the quick stage's entry is
+    written on its own, before the 2-second stage beside it ends."""
+    from dvc.dvcfile import Lockfile
+
+    from motionsynth import repro
+
+    root, env = project
+    with open(root / "dvc.yaml", "a") as f:
+        f.write("  quick:\n    cmd: python -c \"open('q.json', 'w').write('1')\"\n    outs: [q.json]\n")
+    writes: list[list[str]] = []
+    dump = Lockfile.dump_stages
+
+    def counted(self, stages, **kwargs):
+        writes.append(sorted(s.name for s in stages))
+        return dump(self, stages, **kwargs)
+
+    monkeypatch.setattr(Lockfile, "dump_stages", counted)
+    monkeypatch.setattr(repro, "LOCK_EVERY_S", 0.3)
+    monkeypatch.chdir(root)
+    monkeypatch.setenv("PATH", env["PATH"])
+    assert repro.main(["-j", "2", "quick", "slow_c"]) == 0
+    assert writes == [["quick"], ["slow_c"]], writes

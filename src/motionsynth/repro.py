@@ -15,9 +15,10 @@ this process: skipped when ``Stage.changed`` says so (after its upstream stages 
 date. The ``dvc.lock`` entries are written in batches (:meth:`Runner.write_lock`): rewriting the whole
 file costs about 2 s of CPU per stage at 91 stages, time taken from the stages that share the cores.
 A batch is written before a stage starts whose upstream stages wait in it (a stage command may read
-``dvc.lock``), every :data:`LOCK_EVERY_S` seconds, and when the run ends, fails or is interrupted. A
-run killed outright loses at most that many seconds of entries; the next run restores those stages
-from DVC's run cache (or runs them again where a stage has uncached outputs or no dependencies).
+``dvc.lock``), once the oldest pending entry has waited :data:`LOCK_EVERY_S` seconds, and when the run
+ends, fails or is interrupted. A run killed outright loses at most that many seconds of entries; the
+next run restores those stages from DVC's run cache (or runs them again where a stage has uncached
+outputs or no dependencies).
 A failed stage is reported and its downstream stages are skipped; the others go on (``dvc repro
 --keep-going``); the exit status is 1 then.
 
@@ -45,7 +46,7 @@ from motionsynth import threads
 #: per-stage wall seconds of the last run (relative to the repository root); read to order the stages
 TIMES_FILE = Path("reports/stage_times.json")  # outside every stage's deps (reports/metrics is one)
 POLL_S = 0.2  # how often the scheduler looks for a finished stage
-LOCK_EVERY_S = 300.0  # the longest a finished stage's dvc.lock entry waits to be written
+LOCK_EVERY_S = 300.0  # the longest a committed stage's dvc.lock entry waits to be written
 
 
 def log(msg: str) -> None:
@@ -78,7 +79,7 @@ class Runner:
         self.ending: set = set()  # commands done, DVC bookkeeping not yet
         self.ran: dict[str, float] = {}
         self.unlocked: list = []  # committed stages whose dvc.lock entries are not written yet
-        self.locked_at = time.perf_counter()
+        self.unlocked_since = 0.0  # when the oldest of them was committed
         root = Path(repo.root_dir)
         self.times_path = root / TIMES_FILE
         self.times = json.loads(self.times_path.read_text()) if self.times_path.exists() else {}
@@ -164,11 +165,11 @@ class Runner:
         no_cache_outs = any(not o.use_cache for o in st.outs if not (o.is_metric or o.is_plot))
         st.save(run_cache=not no_cache_outs)
         st.commit()
+        if not self.unlocked:
+            self.unlocked_since = time.perf_counter()
         self.unlocked.append(st)
         self.ran[st.addressing] = time.perf_counter() - t0
         self.done.add(st)
-        if time.perf_counter() - self.locked_at >= LOCK_EVERY_S:
-            self.write_lock()
 
     def write_lock(self) -> None:
         """Write the pending ``dvc.lock`` entries: one rewrite of each lock file for all of them."""
@@ -178,7 +179,6 @@ class Runner:
         for dvcfile, stages in by_file.values():
             dvcfile.dump_stages(stages, update_pipeline=False)
         self.unlocked.clear()
-        self.locked_at = time.perf_counter()
 
     def reap(self) -> None:
         """Collect the finished commands; refill the freed slots with stages that do not wait on them
@@ -229,6 +229,8 @@ class Runner:
                     break
                 time.sleep(POLL_S)
                 self.reap()
+                if self.unlocked and time.perf_counter() - self.unlocked_since >= LOCK_EVERY_S:
+                    self.write_lock()  # no entry waits longer, even while no stage finishes
         except BaseException:
             log("interrupted: stopping the running stages (finished stages are committed)")
             self.stop()
