@@ -57,6 +57,22 @@ def project(tmp_path):
     return tmp_path, env
 
 
+@pytest.fixture
+def lock_writes(monkeypatch) -> list[list[str]]:
+    """The stage names of every dvc.lock rewrite DVC makes in this process, in order."""
+    from dvc.dvcfile import Lockfile
+
+    lock_writes: list[list[str]] = []
+    dump = Lockfile.dump_stages
+
+    def counted(self, stages, **kwargs):
+        lock_writes.append(sorted(s.name for s in stages))
+        return dump(self, stages, **kwargs)
+
+    monkeypatch.setattr(Lockfile, "dump_stages", counted)
+    return lock_writes
+
+
 def test_parallel_repro_overlaps_commits_like_dvc_and_skips_only_downstream_of_a_failure(project):
     root, env = project
     r = sh([sys.executable, "-m", "motionsynth.repro", "-j", "2"], root, env, check=False)
@@ -127,30 +143,21 @@ def test_a_missing_data_source_fails_in_one_line_and_skips_only_its_downstream(p
     assert (root / "e.json").read_text() == "1", r.stdout
 
 
-def test_lock_entries_are_written_in_batches_and_before_a_stage_that_may_read_them(project, monkeypatch):
+def test_lock_entries_are_written_in_batches_and_before_a_stage_that_may_read_them(project, lock_writes,
+                                                                                   monkeypatch):
     """dvc.lock is rewritten once for the finished stages together, not once per stage; a stage whose
     upstream entries wait in the batch gets them written first (its command reads dvc.lock here)."""
-    from dvc.dvcfile import Lockfile
-
     from motionsynth import repro
 
     root, env = project
     with open(root / "dvc.yaml", "a") as f:
         f.write("  reads_lock:\n    cmd: python -c \"import yaml; s = yaml.safe_load(open('dvc.lock'))['stages']; "
                 "open('f.json', 'w').write(str(sorted(s)))\"\n    deps: [a.json]\n    outs: [f.json]\n")
-    writes: list[list[str]] = []
-    dump = Lockfile.dump_stages
-
-    def counted(self, stages, **kwargs):
-        writes.append(sorted(s.name for s in stages))
-        return dump(self, stages, **kwargs)
-
-    monkeypatch.setattr(Lockfile, "dump_stages", counted)
     monkeypatch.chdir(root)
     monkeypatch.setenv("PATH", env["PATH"])
     assert repro.main(["-j", "1", "slow_a", "slow_c", "reads_lock"]) == 0
-    assert sorted(sum(writes, [])) == ["reads_lock", "slow_a", "slow_c"], writes
-    assert len(writes) < 3, writes                       # batched: not one rewrite per stage
+    assert sorted(sum(lock_writes, [])) == ["reads_lock", "slow_a", "slow_c"], lock_writes
+    assert len(lock_writes) < 3, lock_writes         # batched: not one rewrite per stage
     assert "slow_a" in (root / "f.json").read_text()     # written before reads_lock started
     st = json.loads(sh([sys.executable, "-m", "dvc", "status", "--json"], root, env).stdout)
     assert set(st) == {"after_a", "broken", "after_broken"}, st
@@ -182,26 +189,16 @@ def test_a_run_killed_before_its_lock_write_is_restored_from_the_run_cache(proje
     assert st == {}, st
 
 
-def test_a_pending_lock_entry_is_written_while_other_stages_still_run(project, monkeypatch):
+def test_a_pending_lock_entry_is_written_while_other_stages_still_run(project, lock_writes, monkeypatch):
     """An entry waits at most LOCK_EVERY_S, even while no other stage finishes: the quick stage's entry is
     written on its own, before the 2-second stage beside it ends."""
-    from dvc.dvcfile import Lockfile
-
     from motionsynth import repro
 
     root, env = project
     with open(root / "dvc.yaml", "a") as f:
         f.write("  quick:\n    cmd: python -c \"open('q.json', 'w').write('1')\"\n    outs: [q.json]\n")
-    writes: list[list[str]] = []
-    dump = Lockfile.dump_stages
-
-    def counted(self, stages, **kwargs):
-        writes.append(sorted(s.name for s in stages))
-        return dump(self, stages, **kwargs)
-
-    monkeypatch.setattr(Lockfile, "dump_stages", counted)
     monkeypatch.setattr(repro, "LOCK_EVERY_S", 0.3)
     monkeypatch.chdir(root)
     monkeypatch.setenv("PATH", env["PATH"])
     assert repro.main(["-j", "2", "quick", "slow_c"]) == 0
-    assert writes == [["quick"], ["slow_c"]], writes
+    assert lock_writes == [["quick"], ["slow_c"]], lock_writes
