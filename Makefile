@@ -37,6 +37,7 @@ bench: install
 	$(BIN)/python bench/metrics.py
 	$(BIN)/python bench/acLSTM_units_check.py
 	$(BIN)/python bench/concurrency.py
+	$(BIN)/python bench/allocator.py
 	$(BIN)/python bench/stability.py
 
 ui: install

@@ -26,6 +26,11 @@ from motionsynth.threads import OMP_SPIN_DEFAULT, OMP_SPIN_ENV  # noqa: E402  (i
 # a busy workstation) do not burn each other's cycles (motionsynth.threads). Set before torch starts.
 os.environ.setdefault(OMP_SPIN_ENV, OMP_SPIN_DEFAULT)
 
+from motionsynth import allocator  # noqa: E402
+
+# A training step's buffers are reused, not returned to the kernel and faulted back in (motionsynth.allocator).
+allocator.tune()
+
 from motionsynth import tracking  # noqa: E402
 from motionsynth.data.types import USER_ERRORS  # noqa: E402
 

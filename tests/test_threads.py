@@ -1,4 +1,4 @@
-"""Thread counts from the cores a process may use, and passive OpenMP waiting in the pipelines."""
+"""Thread counts from the cores a process may use, passive OpenMP waiting and malloc settings in the pipelines."""
 
 from __future__ import annotations
 
@@ -39,3 +39,31 @@ def test_pipelines_spin_briefly_unless_told_otherwise():
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, env={**env, "GOMP_SPINCOUNT": "0"},
                          capture_output=True, text=True, check=True)
     assert out.stdout.split()[0] == "0"
+
+
+# A step-like loop: two 8 MB buffers taken and freed per step, as oneDNN's workspace and a gradient are.
+_STEPS = ("import resource, sys; sys.path.insert(0, 'pipelines'){setup}\n"
+          "import numpy as np\n"
+          "def step():\n"
+          "    a = np.ones(1 << 20); b = np.ones(1 << 20); del a, b\n"
+          "step()\n"
+          "f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"
+          "for _ in range(40): step()\n"
+          "print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)")
+
+
+def _faults(setup: str, **env) -> int:
+    base = {k: v for k, v in os.environ.items()
+            if k not in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MOTIONSYNTH_MALLOC")}
+    out = subprocess.run([sys.executable, "-c", _STEPS.format(setup=setup)], cwd=REPO, env={**base, **env},
+                         capture_output=True, text=True, check=True)
+    return int(out.stdout.split()[-1])
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc")
+def test_the_pipelines_keep_a_steps_buffers_instead_of_faulting_them_back_in():
+    tuned = _faults("; import _common")                                 # the entry points' settings
+    glibc = _faults("; import _common", MOTIONSYNTH_MALLOC="glibc")     # glibc's defaults, kept on request
+    assert glibc > 40 * 500                  # with the defaults, megabytes of pages are faulted in again each step
+    assert tuned < glibc / 20                # with the pipelines' settings they are reused
+    assert _faults("; import _common", MALLOC_TRIM_THRESHOLD_="0") > glibc / 2   # the user's glibc choice wins
