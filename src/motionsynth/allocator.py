@@ -36,7 +36,6 @@ compares against): then :func:`tune` changes nothing. Other C libraries (macOS, 
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import os
 
 #: buffers below this many bytes are taken from (and kept in) the heap; glibc's maximum on 64-bit
@@ -57,9 +56,8 @@ def tune() -> bool:
     if any(k in os.environ for k in GLIBC_ENV) or os.environ.get(OPT_OUT_ENV) == "glibc":
         return False
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):  # no glibc (macOS, musl without mallopt)
+        mallopt = ctypes.CDLL(None).mallopt   # the C library the process runs on (no ldconfig search)
+    except (OSError, AttributeError):         # not glibc: macOS has no mallopt
         return False
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)) and bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD))
