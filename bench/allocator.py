@@ -22,10 +22,13 @@ import statistics
 import subprocess
 import sys
 import tempfile
+from pathlib import Path
 
 from _util import ROOT, emit
 
-SETTINGS = {"tuned": {}, "glibc": {"MOTIONSYNTH_MALLOC": "glibc"}}
+from motionsynth.allocator import GLIBC_ENV, OPT_OUT_ENV
+
+SETTINGS = {"tuned": {}, "glibc": {OPT_OUT_ENV: "glibc"}}
 
 
 def stage(tmp: str, dataset: str, model: str, steps: int, setting: str, k: int) -> tuple[float, float, float]:
@@ -34,14 +37,14 @@ def stage(tmp: str, dataset: str, model: str, steps: int, setting: str, k: int) 
     cmd = [sys.executable, str(ROOT / "pipelines" / "train.py"), f"dataset={dataset}", f"model={model}",
            f"train.steps={steps}", f"train.eval_every={steps}", "tracking.enabled=false", f"run_name={tag}",
            f"paths.models={tmp}/models", f"paths.reports={tmp}/reports", f"hydra.run.dir={tmp}/hydra/{tag}"]
-    env = {k: v for k, v in os.environ.items() if k not in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")}
+    env = {k: v for k, v in os.environ.items() if k not in GLIBC_ENV}
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_minflt
     out = subprocess.run(cmd, cwd=ROOT, env={**env, "PROGRESS": "0", **SETTINGS[setting]},
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     if out.returncode:
         raise SystemExit(f"{tag} failed:\n{out.stderr[-2000:]}")
     faults = resource.getrusage(resource.RUSAGE_CHILDREN).ru_minflt - before
-    summary = json.loads((ROOT / tmp / "reports" / "metrics" / "train" / dataset / f"{tag}.json").read_text())
+    summary = json.loads((Path(tmp) / "reports" / "metrics" / "train" / dataset / f"{tag}.json").read_text())
     return 1000 * summary["seconds"] / summary["steps"], faults / summary["steps"], summary["train/loss"]
 
 

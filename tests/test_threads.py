@@ -9,7 +9,7 @@ import sys
 import pytest
 from conftest import REPO
 
-from motionsynth import threads
+from motionsynth import allocator, threads
 from motionsynth.training.trainer import TrainConfig
 
 
@@ -42,7 +42,7 @@ def test_pipelines_spin_briefly_unless_told_otherwise():
 
 
 # A step-like loop: two 8 MB buffers taken and freed per step, as oneDNN's workspace and a gradient are.
-_STEPS = ("import resource, sys; sys.path.insert(0, 'pipelines'){setup}\n"
+_STEPS = ("import resource, sys; sys.path.insert(0, 'pipelines'); import _common\n"
           "import numpy as np\n"
           "def step():\n"
           "    a = np.ones(1 << 20); b = np.ones(1 << 20); del a, b\n"
@@ -52,18 +52,18 @@ _STEPS = ("import resource, sys; sys.path.insert(0, 'pipelines'){setup}\n"
           "print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)")
 
 
-def _faults(setup: str, **env) -> int:
-    base = {k: v for k, v in os.environ.items()
-            if k not in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MOTIONSYNTH_MALLOC")}
-    out = subprocess.run([sys.executable, "-c", _STEPS.format(setup=setup)], cwd=REPO, env={**base, **env},
+def _faults(**env) -> int:
+    """Minor page faults of 40 such steps in a process that imports the entry points' ``_common``."""
+    base = {k: v for k, v in os.environ.items() if k not in (*allocator.GLIBC_ENV, allocator.OPT_OUT_ENV)}
+    out = subprocess.run([sys.executable, "-c", _STEPS], cwd=REPO, env={**base, **env},
                          capture_output=True, text=True, check=True)
     return int(out.stdout.split()[-1])
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc")
 def test_the_pipelines_keep_a_steps_buffers_instead_of_faulting_them_back_in():
-    tuned = _faults("; import _common")                                 # the entry points' settings
-    glibc = _faults("; import _common", MOTIONSYNTH_MALLOC="glibc")     # glibc's defaults, kept on request
+    tuned = _faults()                                                   # the entry points' settings
+    glibc = _faults(**{allocator.OPT_OUT_ENV: "glibc"})                 # glibc's defaults, kept on request
     assert glibc > 40 * 500                  # with the defaults, megabytes of pages are faulted in again each step
     assert tuned < glibc / 20                # with the pipelines' settings they are reused
-    assert _faults("; import _common", MALLOC_TRIM_THRESHOLD_="0") > glibc / 2   # the user's glibc choice wins
+    assert _faults(MALLOC_TRIM_THRESHOLD_="0") > glibc / 2   # the user's glibc choice wins

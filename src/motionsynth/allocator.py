@@ -6,12 +6,13 @@ back to the kernel after each step: its *dynamic* mmap threshold maps buffers ab
 the top of the heap is trimmed whenever more than ``M_TRIM_THRESHOLD`` lies free. The next step then
 takes a page fault, and the kernel zeroes a new page, for every 4 kB it touches again.
 
-Measured here (2-core Zen 5, one thread, the same training rounds, ``bench/allocator.py``):
+Measured here (2-core Zen 5, one thread, nothing else running; ``bench/allocator.py``, medians of 3):
 
-* LSTM-3LR on ``bandai2_locomotion``: 8,500 minor page faults and 67-71 ms per optimiser step
-  with glibc's defaults; 0 faults and 51-54 ms with the settings below (24 % faster);
-* SA-GCN on ``h36m``: 11,000-12,000 faults, 161-175 ms a step; 100-150 faults, 140-152 ms (13 %);
-* ERD, acLSTM, GloGen, c-SkeletonGAN: within 2 % either way (they fault little or compute much).
+* LSTM-3LR on ``bandai2_locomotion``: 67.5 ms per optimiser step and 7,797 minor page faults with
+  glibc's defaults; 54.2 ms and 628 with the settings below (1.25x; the faults include start-up);
+* SA-GCN on ``h36m``: 187.4 ms and 16,999 faults; 167.9 ms and 3,919 (1.12x);
+* ERD, acLSTM, GloGen, c-SkeletonGAN, one training round each: within 2 % either way (they fault
+  little or compute much).
 
 Two stages at a time (``make run``), where both processes' faults compete for the kernel and memory,
 the gain is larger: ERD and LSTM-3LR stages took 24-33 % less wall time (LSTM-3LR on ``cmu_aclstm``
