@@ -195,6 +195,40 @@ def test_a_few_seconds_of_training_give_a_latent_that_changes_the_motion(real):
     assert (post - prior).abs().mean().item() > 0.05
 
 
+def test_the_aggregate_prior_is_the_gaussian_of_the_posteriors_and_generation_samples_it(real):
+    """``prior: aggregate``: mean and covariance of the mixture of the windows' posteriors (eval mode), and
+    generation without seed frames draws ``z_1 = prior_mean + prior_scale eps``; ``standard`` ignores them."""
+    batch, spec = real
+    m = model(spec, prior="aggregate").train()
+    m.fit_prior(batch.pose)
+    assert m.training                                    # fitted in eval mode, the mode restored
+    m.eval()
+    with torch.no_grad():
+        mu, logvar = m.first_posterior(m.flat(batch.pose), 4)
+    mu, var = mu.double(), logvar.double().exp()
+    assert torch.allclose(m.prior_mean.double(), mu.mean(0), atol=1e-6)
+    L = m.prior_scale.double()
+    assert torch.equal(L, L.tril())
+    assert torch.allclose(L @ L.T, torch.cov(mu.T, correction=0) + torch.diag(var.mean(0)), atol=1e-5)
+    assert not torch.allclose(L, torch.eye(len(L), dtype=L.dtype), atol=1e-3)
+
+    torch.manual_seed(3)
+    eps = torch.randn(2, m.hidden)
+    torch.manual_seed(3)
+    drawn = m.generate(None, batch.controls[:2])
+    z1 = m.prior_mean + eps @ m.prior_scale.T
+    with torch.no_grad():
+        g = m.encode_controls(batch.controls[:2])
+        expected = m.unflat(m.decode(m.cell.rollout(z1, m.with_latent(g, z1))))
+    assert torch.allclose(drawn, expected, atol=1e-5)
+
+    m.prior = "standard"                                 # the paper's N(0, I): the buffers are not read
+    torch.manual_seed(3)
+    with torch.no_grad():
+        expected = m.unflat(m.decode(m.cell.rollout(eps, m.with_latent(g, eps))))
+    assert torch.allclose(m.generate(None, batch.controls[:2]), expected, atol=1e-5)
+
+
 def test_overfits_one_real_batch(real):
     batch, spec = real
     m = model(spec, dropout=0.0, l1=0.0)
@@ -237,6 +271,7 @@ def test_deterministic_given_the_seed(real):
     ({"train_mode": "other"}, "train_mode"),
     ({"kl_warmup": 1.5}, "kl_warmup"),
     ({"free_bits": -1.0}, "free_bits"),
+    ({"prior": "learnt"}, "prior"),
 ])
 def test_invalid_hyperparameters_raise(real, over, msg):
     _, spec = real

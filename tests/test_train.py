@@ -19,7 +19,7 @@ from motionsynth.data.ingest import ingest
 from motionsynth.data.prepare import prepare
 from motionsynth.data.splits import split_dataset
 from motionsynth.training.checkpoint import load
-from motionsynth.training.run import dataset_hash, run
+from motionsynth.training.run import dataset_hash, load_trained, run
 
 DS = "bandai2_locomotion"
 
@@ -54,6 +54,18 @@ def test_rerun_is_bitwise_identical(root, tmp_path):
     assert {k: v for k, v in a.items() if k != "seconds"} == {k: v for k, v in b.items() if k != "seconds"}
     wa, wb = weights(tmp_path / "a" / DS / "vae_lstm/last.pt"), weights(tmp_path / "b" / DS / "vae_lstm/last.pt")
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
+
+
+def test_best_pt_carries_the_aggregate_prior_of_its_own_weights(root, tmp_path):
+    """VAE-LSTM's generation prior (``prior: aggregate``) is refitted after every round, so the checkpoint
+    that selection keeps holds the statistics of its own weights on the train split, not N(0, I)."""
+    run(config(root, "model=vae_lstm", f"paths.models={tmp_path}"), progress=False)
+    model, train = load_trained(tmp_path / DS / "vae_lstm")
+    assert model.prior == "aggregate"
+    mean, scale = model.prior_mean.clone(), model.prior_scale.clone()
+    assert not torch.allclose(scale, torch.eye(len(scale)), atol=1e-3)
+    model.fit_statistics(train)
+    assert torch.allclose(model.prior_mean, mean, atol=1e-5) and torch.allclose(model.prior_scale, scale, atol=1e-5)
 
 
 def test_kill_9_then_resume_equals_uninterrupted(root, tmp_path):

@@ -23,7 +23,9 @@
   is written atomically every ``checkpoint_every`` rounds. Rerunning after a ``kill -9`` resumes
   from it and ends with the same weights as an uninterrupted run.
 * Models with nothing to learn (zero-velocity, the mean pose: ``reference = True``) are evaluated
-  once (after ``fit_statistics(train)`` where the model has it).
+  once (after ``fit_statistics(train)`` where the model has it). A trained model that has
+  ``fit_statistics`` gets it after every round, before validation and the checkpoints, so the
+  statistics in ``best.pt`` are those of its own weights (VAE-LSTM's aggregate-posterior prior).
 * Progress hooks: the model's ``set_epoch(round)`` and ``set_progress(step, total_steps)`` (noise
   curricula, scheduled sampling, KL warm-up) are called before every step.
 * Adversarial models (``model.adversarial``: the GAN family, :mod:`motionsynth.models.adversarial`) train
@@ -634,6 +636,8 @@ class Trainer:
                 self.on_epoch(0, metrics)
         for r in range(self.start_epoch, rounds):
             metrics = {"epoch": r, **self.train_round(r)}
+            if hasattr(self.model, "fit_statistics"):  # no RNG, eval mode inside: training's bits are untouched
+                self.model.fit_statistics(self.train_data)
             step = min((r + 1) * self.round_steps, self.total_steps)
             metrics.update(step=step, data_epoch=round(step / self.steps_per_pass, 4),
                            lr=self.cfg.lr * lr_factor(step - 1, self.total_steps, self.cfg))
