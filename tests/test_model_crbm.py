@@ -84,6 +84,42 @@ def test_cd_gradient_equals_the_closed_form_update(k):
     assert not torch.equal(vk, v0)
 
 
+def test_whitened_conditioning_is_a_reparametrisation_folded_into_the_weights():
+    """``whiten``: ``A``, ``B`` act on ``(u - cond_mean) cond_proj``. The biases, the CD gradient's chain
+    and a roll-out equal those of the raw model with ``A' = A P^T``, ``b' = b - m A'^T`` (likewise ``B``,
+    ``c``); without ``whiten`` the buffers are not read."""
+    spec = DataSpec(joints=2, dims=2, num_classes=3, controls=3, fps=60.0, window=12)
+    torch.manual_seed(0)
+    w = CRBM(spec, hidden_size=5, order=2, control_mode="given", init_std=0.3, whiten=1e-3).double()
+    C = w.cond_dim
+    P = torch.randn(C, C, dtype=torch.float64)
+    P = P @ P.T / C + torch.eye(C, dtype=torch.float64)
+    w.cond_proj.copy_(P)
+    w.cond_mean.copy_(torch.randn(C))
+    raw = CRBM(spec, hidden_size=5, order=2, control_mode="given", whiten=None).double()
+    with torch.no_grad():
+        raw.W.copy_(w.W)
+        raw.A.copy_(w.A @ P.T)
+        raw.B.copy_(w.B @ P.T)
+        raw.b_v.copy_(w.b_v - w.cond_mean @ raw.A.t())
+        raw.b_h.copy_(w.b_h - w.cond_mean @ raw.B.t())
+    b = synthetic(spec, B=4, T=12)
+    b = Batch(b.pose.double(), b.controls.double(), b.labels)
+    _, u = w._windows(b)
+    explicit = (u - w.cond_mean) @ P                     # the whitened conditioning, unfolded
+    bv, ch = w.biases(u)
+    assert torch.allclose(bv, w.b_v + explicit @ w.A.t(), atol=1e-10)
+    assert torch.allclose(ch, w.b_h + explicit @ w.B.t(), atol=1e-10)
+    for x, y in zip(w.biases(u), raw.biases(u)):
+        assert torch.allclose(x, y, atol=1e-10)
+    torch.manual_seed(5)
+    a = w.eval().generate(b.pose[:, :4], b.controls, b.labels, length=12)
+    torch.manual_seed(5)
+    assert torch.allclose(a, raw.eval().generate(b.pose[:, :4], b.controls, b.labels, length=12), atol=1e-8)
+    raw.cond_proj.copy_(P)                               # no whiten: the buffers are not read
+    assert torch.equal(raw.biases(u)[0], raw.b_v + u @ raw.A.t())
+
+
 def test_more_gibbs_steps_change_the_chain():
     torch.manual_seed(0)
     m = CRBM(GLOCAL, hidden_size=8, order=2, init_std=0.2)
@@ -141,7 +177,8 @@ def test_deterministic_rerun():
 
 
 @pytest.mark.parametrize("field,value", [("cd_k", 0), ("cd_k", -1), ("hidden_size", 0), ("order", 0),
-                                         ("gibbs_steps", 0), ("control_mode", "both")])
+                                         ("gibbs_steps", 0), ("control_mode", "both"), ("whiten", 0),
+                                         ("whiten", 1.5), ("whiten", True), ("whiten", "yes")])
 def test_bad_config_names_the_field(field, value):
     with pytest.raises(ValueError, match=field):
         CRBM(LOCO, **{field: value})

@@ -68,6 +68,38 @@ def test_best_pt_carries_the_aggregate_prior_of_its_own_weights(root, tmp_path):
     assert torch.allclose(model.prior_mean, mean, atol=1e-5) and torch.allclose(model.prior_scale, scale, atol=1e-5)
 
 
+def test_crbm_trains_on_the_whitening_of_the_train_split_from_its_first_step(root, tmp_path):
+    """The cRBM's ``whiten``: the trainer fits it before the first optimiser step (every step's loss sees
+    it), it is never refitted, and ``best.pt`` holds the ZCA whitening of the train split's conditioning:
+    ``P C P = C (C + floor I)^-1``, with ``C`` its covariance over whole windows and the floor ``whiten``
+    times C's largest eigenvalue."""
+    from motionsynth.training.run import build
+    from motionsynth.training.trainer import Trainer
+
+    cfg = config(root, "model=crbm", "train.steps=6", "train.eval_every=3", f"paths.models={tmp_path}")
+    model, train, val, tcfg = build(cfg)
+    assert model.whiten == 1e-3 and int(model.cond_fitted) == 0
+    seen, loss = [], model.loss
+    model.loss = lambda batch: (seen.append((model.training, int(model.cond_fitted))), loss(batch))[1]
+    Trainer(model, train, val, tcfg, tmp_path / "run", "fp", progress=False).fit()
+    assert [f for training, f in seen if training] == [1] * 6 and {f for _, f in seen} == {1}
+    best = load(tmp_path / "run" / "best.pt")["model"]
+    model.eval()
+    with torch.no_grad():
+        conds = [model._windows(train.batch(i))[1] for i in train.batch_indices(64, False, 0)]
+    u = torch.cat([c.reshape(-1, model.cond_dim) for c in conds]).double()
+    mean = u.mean(0)
+    C = torch.cov(u.T, correction=0)
+    floor = 1e-3 * float(torch.linalg.eigvalsh(C).max())
+    P = best["cond_proj"].double()
+    assert int(best["cond_fitted"]) == 1 and torch.allclose(best["cond_mean"].double(), mean, atol=1e-5)
+    assert torch.allclose(P, P.T, atol=1e-6)
+    want = C @ torch.linalg.inv(C + floor * torch.eye(len(C), dtype=C.dtype))
+    assert torch.allclose(P @ C @ P, want, atol=1e-4)
+    model.fit_statistics(val)                            # fitted once: another split changes nothing
+    assert torch.equal(model.cond_proj, best["cond_proj"]) and torch.equal(model.cond_mean, best["cond_mean"])
+
+
 def test_kill_9_then_resume_equals_uninterrupted(root, tmp_path):
     args = ["model=vae_lstm", "train.steps=72", "train.eval_every=6", "train.patience=100"]
     run(config(root, *args, f"paths.models={tmp_path}/ref"), progress=False)

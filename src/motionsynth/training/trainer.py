@@ -22,10 +22,11 @@
 * Crash-safe: ``last.pt`` (model, optimiser, round, history, RNG state, best score, MLflow run id)
   is written atomically every ``checkpoint_every`` rounds. Rerunning after a ``kill -9`` resumes
   from it and ends with the same weights as an uninterrupted run.
-* Models with nothing to learn (zero-velocity, the mean pose: ``reference = True``) are evaluated
-  once (after ``fit_statistics(train)`` where the model has it). A trained model that has
-  ``fit_statistics`` gets it after every round, before validation and the checkpoints, so the
-  statistics in ``best.pt`` are those of its own weights (VAE-LSTM's aggregate-posterior prior).
+* A model that has ``fit_statistics(train)`` gets it on the train split before the first step of a
+  fresh run (the mean pose, the cRBM's whitened conditioning) and, when it trains, after every round,
+  before validation and the checkpoints, so the statistics in ``best.pt`` are those of its own weights
+  (VAE-LSTM's aggregate-posterior prior). It uses no RNG. Models with nothing to learn (zero-velocity,
+  the mean pose: ``reference = True``) are then evaluated once.
 * Progress hooks: the model's ``set_epoch(round)`` and ``set_progress(step, total_steps)`` (noise
   curricula, scheduled sampling, KL warm-up) are called before every step.
 * Adversarial models (``model.adversarial``: the GAN family, :mod:`motionsynth.models.adversarial`) train
@@ -619,12 +620,12 @@ class Trainer:
     def fit(self) -> dict[str, Any]:
         if not self.history:  # a fresh run: its clock starts here (a resumed one goes on from its checkpoint)
             self.seconds_before, self._t0 = 0.0, time.perf_counter()
+            if hasattr(self.model, "fit_statistics"):  # the train split's statistics (the mean pose, the
+                self.model.fit_statistics(self.train_data)  # cRBM's whitening) before the first step; no RNG
         if len(self.train_data) == 0 or len(self.val_data) == 0:
             raise ValueError(f"empty data: {len(self.train_data)} train and {len(self.val_data)} val windows")
         rounds = self.rounds if not self.done else 0
         if rounds == 0 and not self.history:  # nothing to learn (zero-velocity, the mean pose): evaluate once
-            if hasattr(self.model, "fit_statistics"):  # e.g. the mean pose of the train split
-                self.model.fit_statistics(self.train_data)
             metrics = {"epoch": 0, "step": 0, **self.evaluate(self.val_data)}
             self.history.append(metrics)
             self.best = metrics.get(self.cfg.monitor, math.inf)
