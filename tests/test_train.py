@@ -100,6 +100,20 @@ def test_crbm_trains_on_the_whitening_of_the_train_split_from_its_first_step(roo
     assert torch.equal(model.cond_proj, best["cond_proj"]) and torch.equal(model.cond_mean, best["cond_mean"])
 
 
+@pytest.mark.parametrize("model_name", ["crbm", "mean_pose"])
+def test_an_empty_train_split_is_refused_before_its_statistics_are_fitted(root, tmp_path, model_name):
+    """A model with ``fit_statistics`` (the cRBM's whitening, the mean pose) on a train split with no windows
+    gets the trainer's one-line "empty data" error, not a failure from inside its statistics."""
+    from motionsynth.training.run import build
+    from motionsynth.training.trainer import Trainer
+
+    cfg = config(root, f"model={model_name}", "train.steps=6", "train.eval_every=3", f"paths.models={tmp_path}")
+    model, train, val, tcfg = build(cfg)
+    train.windows = train.windows.iloc[:0]
+    with pytest.raises(ValueError, match=r"^empty data: 0 train and \d+ val windows$"):
+        Trainer(model, train, val, tcfg, tmp_path / "run", "fp", progress=False).fit()
+
+
 def test_kill_9_then_resume_equals_uninterrupted(root, tmp_path):
     args = ["model=vae_lstm", "train.steps=72", "train.eval_every=6", "train.patience=100"]
     run(config(root, *args, f"paths.models={tmp_path}/ref"), progress=False)

@@ -618,12 +618,12 @@ class Trainer:
 
     # ------------------------------------------------------------------ the loop
     def fit(self) -> dict[str, Any]:
+        if len(self.train_data) == 0 or len(self.val_data) == 0:
+            raise ValueError(f"empty data: {len(self.train_data)} train and {len(self.val_data)} val windows")
         if not self.history:  # a fresh run: its clock starts here (a resumed one goes on from its checkpoint)
             self.seconds_before, self._t0 = 0.0, time.perf_counter()
             if hasattr(self.model, "fit_statistics"):  # the train split's statistics (the mean pose, the
                 self.model.fit_statistics(self.train_data)  # cRBM's whitening) before the first step; no RNG
-        if len(self.train_data) == 0 or len(self.val_data) == 0:
-            raise ValueError(f"empty data: {len(self.train_data)} train and {len(self.val_data)} val windows")
         rounds = self.rounds if not self.done else 0
         if rounds == 0 and not self.history:  # nothing to learn (zero-velocity, the mean pose): evaluate once
             metrics = {"epoch": 0, "step": 0, **self.evaluate(self.val_data)}
