@@ -164,6 +164,25 @@ def test_scheduled_sampling_step_counter():
     assert m.teacher_forcing_prob() < 1e-18
 
 
+@pytest.mark.parametrize("detach", [True, False])
+def test_scheduled_sampling_detach_feeds_the_prediction_back_as_a_constant(detach):
+    """``ss_detach``: the loss of a step fed its own previous prediction reaches the decoder bias only
+    through that step's output (gradient = batch size per feature); without it, also through the
+    fed-back prediction."""
+    torch.manual_seed(0)
+    m = LSTM3LR(GLOCAL, hidden_size=8, scheduled_sampling=True, ss_detach=detach)
+    B, N = 3, 4
+    inp = torch.randn(B, N, m.state_dim)
+    cond = torch.zeros(B, N, m.cond_dim)
+    mask = torch.tensor([[True, False, False, True]] * B)
+    out = m._rollout(inp, cond, mask)
+    out[:, 2].sum().backward()
+    bias = m.decoder[-1].bias.grad
+    assert torch.allclose(bias, torch.full_like(bias, float(B))) == detach
+    with pytest.raises(ValueError, match="ss_detach"):
+        LSTM3LR(GLOCAL, hidden_size=8, ss_detach=1)
+
+
 def test_noise_curriculum_levels():
     m = ERD(LOCO, hidden_size=8, encoder_sizes=[8], decoder_hidden=4, input_noise=[0.0, 0.1, 0.3])
     stds = []

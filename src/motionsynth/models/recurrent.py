@@ -429,6 +429,11 @@ class RecurrentBaseline(MotionModel):
       ``training.family``; the class attribute is ``None`` so the trainer takes the
       dataset's), or ``"vae_lstm"`` / ``"glocal"``, recorded on the instance;
     * ``scheduled_sampling``, ``ss_k``, ``ss_unit``: Bengio et al.'s schedule;
+    * ``ss_detach``: a self-fed input of scheduled sampling enters as a constant, as Bengio et al.'s
+      sampled token does (no gradient flows back through it into the step that predicted it); ``false``
+      (default) keeps that gradient, as acLSTM's and Seq2Seq's self-fed steps always do (validation
+      measured both ways in ``conf/model/scheduled_sampling.yaml``: ``true`` is clearly worse on
+      bandai2_locomotion, so the default stays);
     * ``input_noise``: Gaussian noise on the ground-truth inputs while training (Fragkiadaki
       et al.'s noise curriculum): a std, or a list of stds, each used for an equal share of the
       training budget in turn (the trainer reports the progress, :meth:`set_progress`);
@@ -455,8 +460,12 @@ class RecurrentBaseline(MotionModel):
                  decoder_sizes: Sequence[int] = (), control_mode: str = "predict", seed_frames: int | None = None,
                  family: str | None = None, scheduled_sampling: bool = False, ss_k: float = 100.0,
                  ss_unit: str = "step", input_noise: float | Sequence[float] = 0.0,
-                 step_impl: str = "deferred", train_window: int | None = None, horizon_power: float = 0.0):
+                 step_impl: str = "deferred", train_window: int | None = None, horizon_power: float = 0.0,
+                 ss_detach: bool = False):
         super().__init__(spec)
+        if not isinstance(ss_detach, bool):
+            raise ValueError(f"ss_detach must be true or false, got {ss_detach!r}")
+        self.ss_detach = ss_detach
         if not isinstance(horizon_power, (int, float)) or isinstance(horizon_power, bool) or horizon_power < 0:
             raise ValueError(f"horizon_power must be a number >= 0, got {horizon_power!r}")
         self.horizon_power = float(horizon_power)
@@ -600,8 +609,8 @@ class RecurrentBaseline(MotionModel):
                 prev = o[:, -1]
                 continue
             for t in range(s, e):
-                if per_sample:
-                    s_t = torch.where(mask[:, t, None], inp[:, t], prev)
+                if per_sample:  # scheduled sampling's coins; ``ss_detach``: the prediction enters as a constant
+                    s_t = torch.where(mask[:, t, None], inp[:, t], prev.detach() if self.ss_detach else prev)
                 else:
                     s_t = prev
                 x = s_t if cond is None else torch.cat([s_t, cond[:, t]], -1)
