@@ -66,4 +66,8 @@ def test_the_pipelines_keep_a_steps_buffers_instead_of_faulting_them_back_in():
     glibc = _faults(**{allocator.OPT_OUT_ENV: "glibc"})                 # glibc's defaults, kept on request
     assert glibc > 40 * 500                  # with the defaults, megabytes of pages are faulted in again each step
     assert tuned < glibc / 20                # with the pipelines' settings they are reused
-    assert _faults(MALLOC_TRIM_THRESHOLD_="0") > glibc / 2   # the user's glibc choice wins
+    # the user's glibc choice wins: pages are faulted in again each step, as with glibc's defaults. Not a
+    # ratio to `glibc`: both counts move with the kernel's state (a full suite on a Zen 4 machine once gave
+    # 59,871 for glibc's defaults and 20,840 here, against 39,945 and 41,280 in a quiet process)
+    user = _faults(MALLOC_TRIM_THRESHOLD_="0")
+    assert user > 40 * 250 and user > 20 * tuned
