@@ -297,6 +297,7 @@ def test_configs_build(name):
     (LSTM3LR, dict(hidden_size=8, input_noise=-0.1), "input_noise"),
     (LSTM3LR, dict(hidden_size=8, step_impl="fast"), "step_impl"),
     (ZeroVelocity, dict(seed_frames=0), "seed_frames"),
+    (ACLSTM, dict(hidden_size=8, residual=1), "residual"),
 ])
 def test_invalid_hyperparameters(cls, kw, match):
     with pytest.raises(ValueError, match=match):
@@ -336,3 +337,22 @@ def test_horizon_power_weights_each_predicted_step_by_h_to_the_minus_p():
         assert m.loss(b)[0].item() == pytest.approx(want, rel=1e-4)
     with pytest.raises(ValueError, match="horizon_power"):
         Seq2Seq(LOCO, hidden_size=8, horizon_power=-1)
+
+
+@pytest.mark.parametrize("name", ["erd", "lstm3lr", "aclstm", "scheduled_sampling"])
+def test_residual_output_starts_at_zero_velocity(real, name):
+    """``residual: true`` (a config choice for the baselines that predict poses): the decoder's output is
+    added to the frame fed in, and its last layer starts at zero, so the untrained model rolls out the
+    zero-velocity baseline; without it the untrained model predicts the decoder's (random) output."""
+    batch, spec = real
+    cls, kw = SMALL[name]
+    zv = ZeroVelocity(spec, seed_frames=12).predict(batch)
+    torch.manual_seed(0)
+    res = cls(spec, **kw, seed_frames=12, residual=True).eval()
+    assert res.residual and not cls.residual
+    assert torch.allclose(res.predict(batch), zv, atol=1e-5)
+    torch.manual_seed(0)
+    plain = cls(spec, **kw, seed_frames=12).eval()
+    assert not plain.residual
+    assert (plain.predict(batch)[:, 12:] - zv[:, 12:]).abs().max() > 1e-2
+    assert Seq2Seq(spec, hidden_size=8, residual=False).residual is False and Seq2Seq(spec, hidden_size=8).residual

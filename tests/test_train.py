@@ -114,6 +114,75 @@ def test_an_empty_train_split_is_refused_before_its_statistics_are_fitted(root, 
         Trainer(model, train, val, tcfg, tmp_path / "run", "fp", progress=False).fit()
 
 
+def test_the_weight_average_is_validated_and_kept_while_training_runs_on_the_trained_weights(root, tmp_path):
+    """``train.average_decay``: the optimiser's path is that of a run without it (``last.pt``'s weights and
+    training losses bit for bit), the average follows ``a <- beta a + (1 - beta) w`` with ``beta = min(decay,
+    (1 + n) / (10 + n))`` step by step, validation scores the average and ``best.pt`` holds it."""
+    from motionsynth.training.run import build
+    from motionsynth.training.trainer import Trainer
+
+    args = ["model=lstm3lr", "train.steps=12", "train.eval_every=4", "train.patience=100", f"paths.models={tmp_path}"]
+    model, train, val, tcfg = build(config(root, *args))
+    plain = Trainer(model, train, val, tcfg, tmp_path / "plain", "fp", progress=False).fit()
+
+    model, train, val, tcfg = build(config(root, *args, "train.average_decay=0.9"))
+    params = [p for p in model.parameters() if p.requires_grad]
+    after = [[p.detach().clone() for p in params]]                 # the weights before the first step ...
+    trainer = Trainer(model, train, val, tcfg, tmp_path / "avg", "fp", progress=False,
+                      on_step=lambda r, g, loss: after.append([p.detach().clone() for p in params]))  # ... after each
+    averaged = trainer.fit()
+    assert [h["train/loss"] for h in averaged["history"]] == [h["train/loss"] for h in plain["history"]]
+    trained, reference = weights(tmp_path / "avg/last.pt"), weights(tmp_path / "plain/last.pt")
+    assert all(torch.equal(trained[k], reference[k]) for k in reference)
+
+    names = [n for n, p in model.named_parameters() if p.requires_grad]
+    a = after[0]
+    expected = {}
+    for n, w in enumerate(after[1:]):
+        beta = min(0.9, (1 + n) / (10 + n))
+        a = [beta * x + (1 - beta) * y for x, y in zip(a, w)]
+        expected[n + 1] = a
+    best = load(tmp_path / "avg/best.pt")
+    step = averaged["history"][best["epoch"]]["step"]
+    assert all(torch.allclose(best["model"][k], v, rtol=1e-5, atol=1e-7) for k, v in zip(names, expected[step]))
+    assert not all(torch.allclose(best["model"][k], v) for k, v in zip(names, after[step]))
+    model.load_state_dict(best["model"])                          # validation scored the average
+    score = trainer.evaluate(val)[tcfg.monitor]
+    assert score == averaged["history"][best["epoch"]][tcfg.monitor]
+    assert averaged["history"][-1][tcfg.monitor] != plain["history"][-1][tcfg.monitor]
+
+
+def test_a_resumed_run_goes_on_with_its_weight_average(root, tmp_path):
+    """``last.pt`` carries the average and its update count: a run stopped after its first round and resumed
+    ends with the checkpoints (trained weights, average, selected round) of an uninterrupted one, bit for bit."""
+    from motionsynth.training.run import build
+    from motionsynth.training.trainer import Trainer
+
+    args = ["model=lstm3lr", "train.steps=12", "train.eval_every=4", "train.patience=100",
+            "train.average_decay=0.9", f"paths.models={tmp_path}"]
+    model, train, val, tcfg = build(config(root, *args))
+    Trainer(model, train, val, tcfg, tmp_path / "whole", "fp", progress=False).fit()
+
+    def stop(r, metrics):
+        if r == 1:
+            raise KeyboardInterrupt
+
+    model, train, val, tcfg = build(config(root, *args))
+    with pytest.raises(KeyboardInterrupt):
+        Trainer(model, train, val, tcfg, tmp_path / "cut", "fp", progress=False, on_epoch=stop).fit()
+    assert load(tmp_path / "cut/last.pt")["epoch"] == 0
+    model, train, val, tcfg = build(config(root, *args))
+    again = Trainer(model, train, val, tcfg, tmp_path / "cut", "fp", progress=False)
+    assert again.try_resume()
+    again.fit()
+    assert load(tmp_path / "cut/last.pt")["average_updates"] == 12
+    for name in ("last.pt", "best.pt"):
+        whole, cut = load(tmp_path / "whole" / name), load(tmp_path / "cut" / name)
+        assert whole["epoch"] == cut["epoch"] and whole["average_updates"] == cut["average_updates"]
+        assert all(torch.equal(whole["model"][k], cut["model"][k]) for k in whole["model"])
+        assert all(torch.equal(x, y) for x, y in zip(whole["average"], cut["average"]))
+
+
 def test_kill_9_then_resume_equals_uninterrupted(root, tmp_path):
     args = ["model=vae_lstm", "train.steps=72", "train.eval_every=6", "train.patience=100"]
     run(config(root, *args, f"paths.models={tmp_path}/ref"), progress=False)

@@ -6,7 +6,8 @@ Every recurrent baseline is an *encoder - recurrent core - decoder* next-frame p
     x_t   = [s_t, c_t]                                  input of step t
     e_t   = f_enc(x_t)                                  MLP, or the identity (LSTM-3LR, Seq2Seq, acLSTM)
     h_t   = RNN(e_t, h_{t-1})                           nn.LSTM (ERD, LSTM-3LR, acLSTM) / nn.GRU (Seq2Seq)
-    s^_{t+1} = f_dec(h_t) [+ s_t]                       MLP / linear; "+ s_t" = residual velocity (Seq2Seq)
+    s^_{t+1} = f_dec(h_t) [+ s_t]                       MLP / linear; "+ s_t" = residual velocity (Seq2Seq;
+                                                        the others' ``residual`` option)
 
 Features of a frame (``Fy`` = size of ``s_t``, ``Fc`` = size of ``c_t``):
 
@@ -438,6 +439,13 @@ class RecurrentBaseline(MotionModel):
       et al.'s noise curriculum): a std, or a list of stds, each used for an equal share of the
       training budget in turn (the trainer reports the progress, :meth:`set_progress`);
     * ``step_impl``: ``"deferred"`` / ``"cell"`` / ``"module"`` (same numbers, different speed);
+    * ``residual``: the decoder predicts the change from the frame fed in (``s^_{t+1} = f_dec(h_t) +
+      s_t``, Martinez et al.'s residual velocity) and its last layer starts at zero, so the untrained
+      model is the zero-velocity baseline. ``None`` (default): the class's choice, true for Seq2Seq
+      and its variants, false for the others, which the papers (ERD, LSTM-3LR, acLSTM, Bengio et
+      al.) write as pose predictors. ``true`` on ERD, acLSTM and scheduled sampling is a departure
+      of ours, set per dataset where validation chose it (``model_overrides`` in
+      ``conf/dataset/<name>.yaml``; the figures are in the README's *Departures*);
     * ``train_window``: train on random crops of this many frames of each window (acLSTM's authors
       train on 100-frame sequences; ``None``: whole windows). Evaluation always sees whole windows;
     * ``horizon_power`` ``p`` (ours, default 0: the papers' plain MSE): the training loss weights the
@@ -461,8 +469,12 @@ class RecurrentBaseline(MotionModel):
                  family: str | None = None, scheduled_sampling: bool = False, ss_k: float = 100.0,
                  ss_unit: str = "step", input_noise: float | Sequence[float] = 0.0,
                  step_impl: str = "deferred", train_window: int | None = None, horizon_power: float = 0.0,
-                 ss_detach: bool = False):
+                 ss_detach: bool = False, residual: bool | None = None):
         super().__init__(spec)
+        if residual is not None:   # the config's choice, else the class's (Seq2Seq: true; the others: false)
+            if not isinstance(residual, bool):
+                raise ValueError(f"residual must be true, false or null, got {residual!r}")
+            self.residual = residual
         if not isinstance(ss_detach, bool):
             raise ValueError(f"ss_detach must be true or false, got {ss_detach!r}")
         self.ss_detach = ss_detach

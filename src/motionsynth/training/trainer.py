@@ -27,6 +27,13 @@
   before validation and the checkpoints, so the statistics in ``best.pt`` are those of its own weights
   (VAE-LSTM's aggregate-posterior prior). It uses no RNG. Models with nothing to learn (zero-velocity,
   the mean pose: ``reference = True``) are then evaluated once.
+* Weight average (``average_decay``, off by default; ours, no paper of the project uses one): the
+  trainer keeps an exponential moving average of the trainable weights, updated after every optimiser
+  step (:meth:`Trainer._update_average`), and validates, selects and writes to ``best.pt`` the average,
+  not the last step's weights (Polyak averaging; what the GANs' generator average does for their
+  generator, :mod:`motionsynth.models.adversarial`). Training itself runs on the trained weights, so the
+  optimiser's path is that of a run without it; ``last.pt`` holds both, and a resumed run goes on
+  bit for bit.
 * Progress hooks: the model's ``set_epoch(round)`` and ``set_progress(step, total_steps)`` (noise
   curricula, scheduled sampling, KL warm-up) are called before every step.
 * Adversarial models (``model.adversarial``: the GAN family, :mod:`motionsynth.models.adversarial`) train
@@ -83,13 +90,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import random
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import torch
@@ -123,6 +131,7 @@ class TrainConfig:
     betas: list[float] | None = None  # Adam / AdamW (beta1, beta2); None: torch's (0.9, 0.999)
     player_lr: dict[str, float] | None = None   # adversarial models: learning rate per player (others: lr)
     max_logit: float = 1.0e4      # adversarial models: a discriminator logit beyond this magnitude is divergence
+    average_decay: float = 0.0    # > 0: validate, select and keep an exponential moving average of the weights
     patience: int = 5             # validation rounds without improvement before stopping
     min_delta: float = 0.0
     monitor: str = "val/rel_zv"   # selection criterion (motionsynth.training.criteria)
@@ -173,6 +182,9 @@ class TrainConfig:
                 for v in self.player_lr.values())):
             problems.append(f"train.player_lr must map player names to positive numbers, or be null; "
                             f"got {self.player_lr!r}")
+        if isinstance(self.average_decay, bool) or not (isinstance(self.average_decay, (int, float))
+                                                        and 0 <= self.average_decay < 1):
+            problems.append(f"train.average_decay must be a number in [0, 1), got {self.average_decay!r}")
         if not (isinstance(self.max_logit, (int, float)) and self.max_logit > 0):
             problems.append(f"train.max_logit must be a positive number, got {self.max_logit!r}")
         if not (isinstance(self.converged_tol, (int, float)) and self.converged_tol > 0):
@@ -336,6 +348,14 @@ class Trainer:
         else:
             self.optim = make_optimizer(model, cfg)
             self.optims = {"model": self.optim} if self.optim is not None else {}
+        # the weight average (train.average_decay): a copy of the trainable parameters, no gradients
+        self.average: list[torch.Tensor] | None = None
+        self.average_updates = 0
+        if cfg.average_decay and self.optim is not None:
+            if self.adversarial:
+                raise ValueError(f"train.average_decay: {type(model).__name__} is adversarial; a GAN keeps the "
+                                 "average of its generator alone (the model's average_decay)")
+            self.average = [p.detach().clone() for p in self._trainable()]
         self.ddp: torch.nn.parallel.DistributedDataParallel | None = None
         if self.distributed and self.optim is not None:  # nothing to synchronise without trainable parameters
             self.ddp = torch.nn.parallel.DistributedDataParallel(
@@ -355,7 +375,8 @@ class Trainer:
         return {"model": self.model.state_dict(), "optim": optim,
                 "epoch": epoch, "best": self.best, "bad_epochs": self.bad_epochs, "history": self.history,
                 "rng": torch.get_rng_state(), "fingerprint": self.fingerprint, "run_id": self.run_id or "",
-                "done": bool(self.done), "seconds": self.seconds()}
+                "done": bool(self.done), "seconds": self.seconds(),
+                **({"average": self.average, "average_updates": self.average_updates} if self.average else {})}
 
     def seconds(self) -> float:
         """Training seconds of this run so far, over every process that resumed it."""
@@ -378,12 +399,46 @@ class Trainer:
             self.optim.load_state_dict(st["optim"])
         self.start_epoch, self.best, self.bad_epochs = int(st["epoch"]) + 1, float(st["best"]), int(st["bad_epochs"])
         self.history = list(st["history"])
+        if self.average is not None:
+            self.average = [a.to(self.device) for a in st["average"]]
+            self.average_updates = int(st["average_updates"])
         torch.set_rng_state(st["rng"].cpu())   # loaded onto self.device: on a GPU the saved CPU state moved there
         self.run_id = st.get("run_id") or None
         self.done = bool(st.get("done", False))
         self.seconds_before, self._t0 = float(st.get("seconds", 0.0)), time.perf_counter()
         log.info("resumed from %s at round %d", last, self.start_epoch)
         return True
+
+    # ------------------------------------------------------------------ the weight average
+    def _trainable(self) -> list[torch.nn.Parameter]:
+        return [p for p in self.model.parameters() if p.requires_grad]
+
+    @torch.no_grad()
+    def _update_average(self) -> None:
+        """Fold the weights of the step just taken into the average: ``a <- beta a + (1 - beta) w`` with
+        ``beta = min(average_decay, (1 + n) / (10 + n))`` after ``n`` earlier updates (so the early average
+        is not held at the initial weights; the rule of the GANs' generator average)."""
+        n = self.average_updates
+        beta = min(self.cfg.average_decay, (1.0 + n) / (10.0 + n))
+        torch._foreach_lerp_(self.average, [p.detach() for p in self._trainable()], 1.0 - beta)
+        self.average_updates = n + 1
+
+    @contextlib.contextmanager
+    def _averaged(self) -> Iterator[None]:
+        """Inside: the model holds the averaged weights (validation, ``fit_statistics``, ``best.pt``);
+        after: the trained weights again, bit for bit. Without an average, nothing changes."""
+        if self.average is None:
+            yield
+            return
+        params = self._trainable()
+        with torch.no_grad():
+            trained = [p.detach().clone() for p in params]
+            torch._foreach_copy_(params, self.average)
+        try:
+            yield
+        finally:
+            with torch.no_grad():
+                torch._foreach_copy_(params, trained)
 
     def _save(self, epoch: int, name: str) -> None:
         """Write checkpoint ``name`` atomically: on rank 0 only (every rank holds the same state)."""
@@ -488,6 +543,8 @@ class Trainer:
             if self.cfg.grad_clip:
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
             self.optim.step()
+            if self.average is not None:
+                self._update_average()
             value = float(loss.detach())
             if mine > 0:
                 total += value * mine
@@ -624,6 +681,9 @@ class Trainer:
             self.seconds_before, self._t0 = 0.0, time.perf_counter()
             if hasattr(self.model, "fit_statistics"):  # the train split's statistics (the mean pose, the
                 self.model.fit_statistics(self.train_data)  # cRBM's whitening) before the first step; no RNG
+            if self.average is not None:          # the average starts at the weights of the first step
+                self.average = [p.detach().clone() for p in self._trainable()]
+                self.average_updates = 0
         rounds = self.rounds if not self.done else 0
         if rounds == 0 and not self.history:  # nothing to learn (zero-velocity, the mean pose): evaluate once
             metrics = {"epoch": 0, "step": 0, **self.evaluate(self.val_data)}
@@ -637,25 +697,27 @@ class Trainer:
                 self.on_epoch(0, metrics)
         for r in range(self.start_epoch, rounds):
             metrics = {"epoch": r, **self.train_round(r)}
-            if hasattr(self.model, "fit_statistics"):  # no RNG, eval mode inside: training's bits are untouched
-                self.model.fit_statistics(self.train_data)
             step = min((r + 1) * self.round_steps, self.total_steps)
             metrics.update(step=step, data_epoch=round(step / self.steps_per_pass, 4),
                            lr=self.cfg.lr * lr_factor(step - 1, self.total_steps, self.cfg))
-            metrics.update(self.evaluate(self.val_data))
-            if self.cfg.monitor not in metrics:
-                raise ValueError(f"train.monitor {self.cfg.monitor!r} is not a validation metric of "
-                                 f"{type(self.model).__name__}; it reports {sorted(k for k in metrics if '/' in k)}")
-            selectable = bool(getattr(self.model, "selectable", True))
-            if not selectable:          # a round the model says cannot be chosen (SkeletonGAN's pose stage)
-                metrics["selectable"] = 0.0
-            self.history.append(metrics)
-            score = metrics[self.cfg.monitor]
-            if selectable and score < self.best - self.cfg.min_delta:
-                self.best, self.bad_epochs = score, 0
-                self._save(r, "best.pt")
-            elif selectable:
-                self.bad_epochs += 1
+            with self._averaged():  # validated, selected and kept in best.pt: the average, if kept
+                if hasattr(self.model, "fit_statistics"):  # no RNG, eval mode inside: training's bits untouched
+                    self.model.fit_statistics(self.train_data)
+                metrics.update(self.evaluate(self.val_data))
+                if self.cfg.monitor not in metrics:
+                    raise ValueError(f"train.monitor {self.cfg.monitor!r} is not a validation metric of "
+                                     f"{type(self.model).__name__}; it reports "
+                                     f"{sorted(k for k in metrics if '/' in k)}")
+                selectable = bool(getattr(self.model, "selectable", True))
+                if not selectable:          # a round the model says cannot be chosen (SkeletonGAN's pose stage)
+                    metrics["selectable"] = 0.0
+                self.history.append(metrics)
+                score = metrics[self.cfg.monitor]
+                if selectable and score < self.best - self.cfg.min_delta:
+                    self.best, self.bad_epochs = score, 0
+                    self._save(r, "best.pt")
+                elif selectable:
+                    self.bad_epochs += 1
             stop = self.bad_epochs >= self.cfg.patience
             self.done = stop or r == rounds - 1
             # log before last.pt: a kill between the two redoes (and re-logs) this round on resume,
