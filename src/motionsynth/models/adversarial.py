@@ -49,7 +49,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .base import Batch, DataSpec, MotionModel, check_int as _count
+from .base import Batch, DataSpec, MotionModel, average_beta, check_int as _count
 
 #: ``update(player, loss)``: the trainer's step of one player (check, backward, clip, optimiser step)
 Update = Callable[[str, Tensor], None]
@@ -207,8 +207,7 @@ class AdversarialModel(ClipGenerator):
         earlier updates (the early average is not held at the initial weights); buffers are copied."""
         if not self.average_decay:
             return
-        n = int(self.average_updates)
-        beta = min(self.average_decay, (1.0 + n) / (10.0 + n))
+        beta = average_beta(self.average_decay, int(self.average_updates))
         for a, w in zip(self.generator_average.parameters(), self.generator.parameters()):
             a.lerp_(w, 1.0 - beta)
         for a, w in zip(self.generator_average.buffers(), self.generator.buffers()):

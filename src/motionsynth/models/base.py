@@ -31,6 +31,14 @@ def check_int(name: str, value, minimum: int = 1) -> int:
     return int(value)
 
 
+def average_beta(decay: float, updates: int) -> float:
+    """The weight of the old average in an exponential moving average of weights after ``updates``
+    earlier updates: ``min(decay, (1 + n) / (10 + n))``, so the early average is not held at the initial
+    weights. One rule for the GANs' generator average (:mod:`.adversarial`) and the trainer's
+    ``train.average_decay``."""
+    return min(decay, (1.0 + updates) / (10.0 + updates))
+
+
 @dataclass(frozen=True)
 class DataSpec:
     joints: int               # J

@@ -103,7 +103,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from ..models.base import Batch, MotionModel
+from ..models.base import Batch, MotionModel, average_beta
 from ..threads import check as threads_check
 from ..threads import resolve as resolve_threads
 from . import checkpoint as ckpt
@@ -418,10 +418,9 @@ class Trainer:
         """Fold the weights of the step just taken into the average: ``a <- beta a + (1 - beta) w`` with
         ``beta = min(average_decay, (1 + n) / (10 + n))`` after ``n`` earlier updates (so the early average
         is not held at the initial weights; the rule of the GANs' generator average)."""
-        n = self.average_updates
-        beta = min(self.cfg.average_decay, (1.0 + n) / (10.0 + n))
+        beta = average_beta(self.cfg.average_decay, self.average_updates)
         torch._foreach_lerp_(self.average, [p.detach() for p in self._trainable()], 1.0 - beta)
-        self.average_updates = n + 1
+        self.average_updates += 1
 
     @contextlib.contextmanager
     def _averaged(self) -> Iterator[None]:
